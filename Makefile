@@ -1,0 +1,37 @@
+# Set-up, tests and the demo. `make test` and `make demo` each create the virtual
+# environment on first use, so a fresh clone needs nothing else.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+PIP := $(PY) -m pip
+# A CPU build of torch is pinned on machines without an NVIDIA GPU; an unpinned
+# torch would pull several GB of CUDA packages.
+TORCH_CPU ?= torch==2.13.0
+HAS_GPU := $(shell command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1 && echo 1)
+
+.PHONY: install test test-slow demo bench clean
+
+$(VENV)/.installed: pyproject.toml Makefile
+	test -d $(VENV) || $(PYTHON) -m venv $(VENV)
+	$(PIP) install --upgrade pip wheel setuptools
+ifeq ($(HAS_GPU),1)
+	$(PIP) install "torch>=2.4"
+else
+	$(PIP) install $(TORCH_CPU)
+endif
+	$(PIP) install -e ".[dev]"
+	touch $@
+
+install: $(VENV)/.installed
+
+test: install
+	$(PY) -m pytest -q
+
+test-slow: install
+	$(PY) -m pytest -q -m slow
+
+demo: install
+	$(PY) -m renderer.demo --out docs
+
+clean:
+	rm -rf $(VENV) outputs .pytest_cache

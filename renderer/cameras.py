@@ -1,0 +1,284 @@
+"""Batched pinhole cameras and the coordinate conventions of the whole project.
+
+Conventions (this is the one place that documents them):
+
+* World: right-handed, y up. Objects of the benchmarks live around the origin.
+* A camera is an eye position and three orthonormal world vectors: ``forward`` (viewing direction),
+  ``right`` (the image's +column direction) and ``up`` (the image's -row direction).
+* Images are (H, W); row 0 is the top, column 0 the left; rays go through pixel centres:
+  pixel (r, c) looks along ``forward + sx * tan(fov/2) * aspect * right + sy * tan(fov/2) * up``
+  with ``sx = (2 (c + 0.5) / W - 1)``, ``sy = (1 - 2 (r + 0.5) / H)`` and ``aspect = W / H``;
+  ``fov`` is the full vertical field of view.
+* ``Cameras.look_at`` builds the usual right-handed camera: ``right = forward x up``, so a camera on
+  +z looking at the origin sees world +x to the right of the image.
+* ``Cameras.nmr`` reproduces the NMR ShapeNet renders (Kato et al.): eye at elevation 30 degrees,
+  distance 2.732, azimuth ``-15 k`` degrees for view k, ``eye = (d cos e sin a, d sin e, -d cos e cos a)``,
+  full FOV 30 degrees, and the benchmark's left-handed axes ``z_c = normalize(at - eye)``,
+  ``x_c = normalize(up x z_c)``, ``y_c = z_c x x_c``: here ``right = x_c`` (the mirror image of
+  ``look_at``), ``up = y_c``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence, Union
+
+import torch
+
+SizeLike = Union[int, Sequence[int]]
+
+NMR_ELEVATION_DEG = 30.0
+NMR_DISTANCE = 2.732
+NMR_FOV_DEG = 30.0
+NMR_NUM_VIEWS = 24
+
+
+def _image_size(image_size: SizeLike) -> tuple[int, int]:
+    if isinstance(image_size, bool):
+        raise ValueError(f"image_size must be a positive int or (H, W), got {image_size!r}")
+    if isinstance(image_size, int):
+        hw = (image_size, image_size)
+    else:
+        try:
+            hw = tuple(int(s) for s in image_size)
+        except TypeError:
+            raise ValueError(f"image_size must be a positive int or (H, W), got {image_size!r}") from None
+    if len(hw) != 2 or min(hw) <= 0:
+        raise ValueError(f"image_size must be a positive int or (H, W) of positive ints, got {image_size!r}")
+    return hw  # type: ignore[return-value]
+
+
+def _vec3(x, name: str, dtype: torch.dtype, device) -> torch.Tensor:
+    t = torch.as_tensor(x, dtype=dtype, device=device)
+    if t.ndim == 1:
+        t = t.unsqueeze(0)
+    if t.ndim != 2 or t.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (3,) or (B, 3), got {tuple(t.shape)}")
+    if not bool(torch.isfinite(t).all()):
+        raise ValueError(f"{name} must be finite")
+    return t
+
+
+def _normalize(v: torch.Tensor) -> torch.Tensor:
+    return v / v.norm(dim=-1, keepdim=True)
+
+
+@dataclass(frozen=True)
+class Cameras:
+    """A batch of B pinhole cameras sharing one image size.
+
+    Attributes:
+        eye: (B, 3) world positions.
+        forward, right, up: (B, 3) orthonormal world directions (see the module docstring).
+        fov_deg: (B,) full vertical field of view in degrees.
+        image_size: (H, W).
+    """
+
+    eye: torch.Tensor
+    forward: torch.Tensor
+    right: torch.Tensor
+    up: torch.Tensor
+    fov_deg: torch.Tensor
+    image_size: tuple[int, int]
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def look_at(
+        cls,
+        eye,
+        at=(0.0, 0.0, 0.0),
+        up=(0.0, 1.0, 0.0),
+        fov_deg: Union[float, Sequence[float], torch.Tensor] = 60.0,
+        image_size: SizeLike = 64,
+        dtype: torch.dtype = torch.float32,
+        device: Union[str, torch.device] = "cpu",
+    ) -> "Cameras":
+        """Right-handed look-at cameras.
+
+        Args:
+            eye: (3,) or (B, 3) camera positions (world).
+            at: (3,) or (B, 3) points looked at.
+            up: (3,) or (B, 3) approximate up directions (not parallel to ``at - eye``).
+            fov_deg: full vertical field of view, scalar or (B,), in (0, 180).
+            image_size: int or (H, W).
+        """
+        return cls._build(eye, at, up, fov_deg, image_size, dtype, device, left_handed=False)
+
+    @classmethod
+    def nmr(
+        cls,
+        views: Union[int, Sequence[int], torch.Tensor],
+        image_size: SizeLike = 64,
+        dtype: torch.dtype = torch.float32,
+        device: Union[str, torch.device] = "cpu",
+        distance: float = NMR_DISTANCE,
+        elevation_deg: float = NMR_ELEVATION_DEG,
+    ) -> "Cameras":
+        """The NMR ShapeNet benchmark cameras for view indices (B,) (0..23 for the dataset's views).
+
+        Fractional view indices are allowed (azimuth ``-15 * view`` degrees).
+        """
+        v = torch.as_tensor(views, dtype=torch.float64).reshape(-1)
+        if v.numel() == 0:
+            raise ValueError("views must hold at least one view index")
+        if not bool(torch.isfinite(v).all()):
+            raise ValueError("views must be finite")
+        az = torch.deg2rad(-15.0 * v)
+        el = math.radians(elevation_deg)
+        eye = torch.stack([
+            distance * math.cos(el) * torch.sin(az),
+            torch.full_like(az, distance * math.sin(el)),
+            -distance * math.cos(el) * torch.cos(az),
+        ], dim=-1)
+        return cls._build(eye, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), NMR_FOV_DEG, image_size, dtype, device,
+                          left_handed=True)
+
+    @classmethod
+    def cube_rig(
+        cls,
+        distance: float,
+        at=(0.0, 0.0, 0.0),
+        fov_deg: float = 60.0,
+        image_size: SizeLike = 64,
+        dtype: torch.dtype = torch.float32,
+        device: Union[str, torch.device] = "cpu",
+    ) -> "Cameras":
+        """The 26 views of paper section 5: eyes on the 6 face centres, 12 edge midpoints and 8
+        corners of a cube around ``at``, each at ``distance`` from it, looking at it.
+
+        Order: faces, then edges, then corners. Up is +y, or +z for the two views on the y axis.
+        """
+        if not distance > 0:
+            raise ValueError(f"distance must be positive, got {distance}")
+        dirs = []
+        for n_nonzero in (1, 2, 3):
+            for i in (-1, 0, 1):
+                for j in (-1, 0, 1):
+                    for k in (-1, 0, 1):
+                        if (i != 0) + (j != 0) + (k != 0) == n_nonzero:
+                            dirs.append((i, j, k))
+        d = torch.tensor(dirs, dtype=torch.float64)
+        d = d / d.norm(dim=-1, keepdim=True)
+        at_t = torch.as_tensor(at, dtype=torch.float64).reshape(1, 3)
+        eye = at_t + distance * d
+        up = torch.tensor([0.0, 1.0, 0.0], dtype=torch.float64).expand(len(dirs), 3).clone()
+        on_y = (d[:, 0].abs() < 1e-9) & (d[:, 2].abs() < 1e-9)
+        up[on_y] = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64)
+        return cls._build(eye, at_t, up, fov_deg, image_size, dtype, device, left_handed=False)
+
+    @classmethod
+    def _build(cls, eye, at, up, fov_deg, image_size, dtype, device, left_handed: bool) -> "Cameras":
+        hw = _image_size(image_size)
+        eye_t = _vec3(eye, "eye", torch.float64, device)
+        at_t = _vec3(at, "at", torch.float64, device)
+        up_t = _vec3(up, "up", torch.float64, device)
+        b = max(eye_t.shape[0], at_t.shape[0], up_t.shape[0])
+        for name, t in (("eye", eye_t), ("at", at_t), ("up", up_t)):
+            if t.shape[0] not in (1, b):
+                raise ValueError(f"{name} has batch {t.shape[0]}, expected 1 or {b}")
+        eye_t, at_t, up_t = eye_t.expand(b, 3), at_t.expand(b, 3), up_t.expand(b, 3)
+        fov = torch.as_tensor(fov_deg, dtype=torch.float64, device=device).reshape(-1)
+        if fov.shape[0] not in (1, b):
+            raise ValueError(f"fov_deg has {fov.shape[0]} entries, expected 1 or {b}")
+        if not bool(((fov > 0) & (fov < 180)).all()):
+            raise ValueError(f"fov_deg must lie in (0, 180) degrees, got {fov.tolist()}")
+        fov = fov.expand(b)
+        view = at_t - eye_t
+        dist = view.norm(dim=-1)
+        if bool((dist <= 1e-12).any()):
+            raise ValueError("eye and at must differ (zero viewing direction)")
+        up_len = up_t.norm(dim=-1)
+        if bool((up_len <= 1e-12).any()):
+            raise ValueError("up must be a non-zero vector")
+        forward = view / dist[:, None]
+        up_n = up_t / up_len[:, None]
+        if left_handed:
+            side = torch.cross(up_n, forward, dim=-1)
+        else:
+            side = torch.cross(forward, up_n, dim=-1)
+        side_len = side.norm(dim=-1)
+        if bool((side_len <= 1e-9).any()):
+            raise ValueError("up must not be parallel to the viewing direction (at - eye)")
+        right = side / side_len[:, None]
+        if left_handed:
+            true_up = torch.cross(forward, right, dim=-1)
+        else:
+            true_up = torch.cross(right, forward, dim=-1)
+        cast = lambda t: t.to(dtype=dtype).contiguous()  # noqa: E731
+        return cls(cast(eye_t), cast(forward), cast(right), cast(true_up), cast(fov), hw)
+
+    # ------------------------------------------------------------------ use
+    @property
+    def batch_size(self) -> int:
+        return self.eye.shape[0]
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.eye.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.eye.device
+
+    def to(self, device=None, dtype: torch.dtype | None = None) -> "Cameras":
+        """The same cameras on another device and/or dtype."""
+        f = lambda t: t.to(device=device, dtype=dtype or t.dtype)  # noqa: E731
+        return Cameras(f(self.eye), f(self.forward), f(self.right), f(self.up), f(self.fov_deg), self.image_size)
+
+    def __getitem__(self, index) -> "Cameras":
+        """A sub-batch: ``cams[2:5]``, ``cams[[0, 3]]`` or ``cams[mask]``."""
+        if isinstance(index, int):
+            index = slice(index, index + 1 if index != -1 else None)
+        return Cameras(self.eye[index], self.forward[index], self.right[index], self.up[index],
+                       self.fov_deg[index], self.image_size)
+
+    @property
+    def pixel_angle(self) -> torch.Tensor:
+        """(B,) angular size of one pixel at the image centre (radians, small-angle): a pixel covers
+        ``t * pixel_angle`` world units at distance t."""
+        h = self.image_size[0]
+        return 2.0 * torch.tan(torch.deg2rad(self.fov_deg) / 2.0) / h
+
+    def rays(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rays through the pixel centres.
+
+        Returns:
+            origins: (B, H, W, 3) world (an expanded view of ``eye``, no copy).
+            directions: (B, H, W, 3) unit world directions.
+        """
+        h, w = self.image_size
+        dt, dev = self.dtype, self.device
+        tan_half = torch.tan(torch.deg2rad(self.fov_deg) / 2.0)  # (B,)
+        sx = (2.0 * (torch.arange(w, dtype=dt, device=dev) + 0.5) / w - 1.0) * (w / h)
+        sy = 1.0 - 2.0 * (torch.arange(h, dtype=dt, device=dev) + 0.5) / h
+        sx = sx[None, None, :, None] * tan_half[:, None, None, None]
+        sy = sy[None, :, None, None] * tan_half[:, None, None, None]
+        d = (self.forward[:, None, None, :] + sx * self.right[:, None, None, :]
+             + sy * self.up[:, None, None, :])
+        d = _normalize(d)
+        o = self.eye[:, None, None, :].expand(-1, h, w, 3)
+        return o, d
+
+    def project(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Projects world points to continuous pixel coordinates.
+
+        Args:
+            points: (B, P, 3) or (P, 3) world points (the latter shared by all cameras).
+        Returns:
+            pixels: (B, P, 2) as (column, row), pixel centres at integer + 0.5... minus 0.5, i.e. the
+                centre of pixel (r, c) projects to exactly (c, r).
+            depth: (B, P) distance along ``forward`` (positive in front of the camera).
+        """
+        if points.ndim == 2:
+            points = points.unsqueeze(0).expand(self.batch_size, -1, -1)
+        h, w = self.image_size
+        rel = points.to(self.dtype) - self.eye[:, None, :]
+        z = (rel * self.forward[:, None, :]).sum(-1)
+        x = (rel * self.right[:, None, :]).sum(-1)
+        y = (rel * self.up[:, None, :]).sum(-1)
+        tan_half = torch.tan(torch.deg2rad(self.fov_deg) / 2.0)[:, None]
+        sx = x / z / (tan_half * (w / h))
+        sy = y / z / tan_half
+        col = (sx + 1.0) * w / 2.0 - 0.5
+        row = (1.0 - sy) * h / 2.0 - 0.5
+        return torch.stack([col, row], dim=-1), z
