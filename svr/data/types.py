@@ -1,0 +1,59 @@
+"""The batch the single-view data modules yield and the training/evaluation code consumes."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass(frozen=True)
+class ShadingModel:
+    """How a dataset's RGB was shaded, when known (the procedural data), so the training loss can
+    render the same shading with renderer.Scene. None of this is known for NMR ShapeNet."""
+
+    light_direction: tuple[float, float, float]
+    light_intensity: float
+    ambient: float
+    albedo: tuple[float, float, float]
+    background: tuple[float, float, float]
+
+
+@dataclass
+class SVRBatch:
+    """B objects, V views each.
+
+    Attributes:
+        images: (B, V, 4, 64, 64) float32 RGBA in [0, 1] (alpha = anti-aliased silhouette, RGB on a
+            white background after inversion detection); view 0 of each object is the network input.
+        view_ids: (B, V) long NMR view indices (0..23), for renderer.Cameras.nmr.
+        voxels: (B, 32, 32, 32) bool solid voxels in the NMR voxel frame (svr/metrics.py).
+        category: (B,) long index into the data module's ``categories`` list.
+        object_index: (B,) long index of the object within its category and split.
+    """
+
+    images: torch.Tensor
+    view_ids: torch.Tensor
+    voxels: torch.Tensor
+    category: torch.Tensor
+    object_index: torch.Tensor
+
+    def to(self, device) -> "SVRBatch":
+        return SVRBatch(*(t.to(device) for t in (self.images, self.view_ids, self.voxels, self.category,
+                                                  self.object_index)))
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+
+def collate_batch(items: list[dict]) -> SVRBatch:
+    """Stacks per-sample dicts with keys images, view_ids, voxels, category, object_index."""
+    return SVRBatch(
+        images=torch.stack([torch.as_tensor(i["images"]) for i in items]).float(),
+        view_ids=torch.stack([torch.as_tensor(i["view_ids"]) for i in items]).long(),
+        voxels=torch.stack([torch.as_tensor(i["voxels"]) for i in items]).bool(),
+        category=torch.as_tensor([int(i["category"]) for i in items], dtype=torch.long),
+        object_index=torch.as_tensor([int(i["object_index"]) for i in items], dtype=torch.long),
+    )
+
+
+__all__ = ["SVRBatch", "ShadingModel", "collate_batch"]
