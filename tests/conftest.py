@@ -1,0 +1,34 @@
+"""Shared test set-up: skip `cuda` tests where no GPU is usable; quiet the fallback warning."""
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+
+def _cuda_ok() -> bool:
+    if not torch.cuda.is_available():
+        return False
+    try:
+        from renderer import kernels
+
+        return kernels.available("cuda")[0]
+    except Exception:
+        return False
+
+
+def pytest_collection_modifyitems(config, items):
+    if _cuda_ok():
+        return
+    skip = pytest.mark.skip(reason="needs an NVIDIA GPU with numba CUDA")
+    for item in items:
+        if "cuda" in item.keywords:
+            item.add_marker(skip)
+
+
+@pytest.fixture(autouse=True)
+def _quiet_fallback():
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="fused .* march unavailable")
+        yield
