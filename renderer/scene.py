@@ -7,7 +7,7 @@ from typing import Optional, Sequence, Union
 import math
 
 EFFECTS = ("silhouette", "depth", "normal", "shading")
-INTERSECTIONS = ("conservative",)
+INTERSECTIONS = ("conservative", "exact")
 
 
 def _vec3(x, name: str) -> tuple[float, float, float]:
@@ -66,7 +66,8 @@ class Scene:
             divided by ``sigma * pixel footprint``, goes through a sigmoid). 0.3 gives about the
             slope of a box-filtered (anti-aliased) edge.
         intersection: how the hit point is found from the traced point: "conservative" is the
-            paper's ``p = s + f(s) v``.
+            paper's ``p = s + f(s) v``; "exact" the root of the trilinear SDF along the ray, with
+            gradients by implicit differentiation (renderer/exact.py).
     """
 
     effects: tuple[str, ...] = ("silhouette", "depth", "normal", "shading")
