@@ -1,14 +1,209 @@
 """Fused sphere-tracing marches (numba CPU and CUDA) sharing one per-ray routine.
 
-They implement exactly the march of renderer/reference.py, which stays the specification.
+They implement exactly the march of renderer/reference.py, which stays the specification; the
+per-ray code is renderer/kernels/raymarch.py. This module is the torch side: it checks the inputs,
+packs the grid and the settings into small parameter arrays, hands the kernels zero-copy views of
+the tensors (CPU: ``Tensor.numpy()``; CUDA: ``numba.cuda.as_cuda_array``, the CUDA array
+interface) and returns torch tensors. Nothing here is differentiable, and nothing needs to be: the
+gradients come from the PyTorch stage 2 (renderer/shading.py).
+
+The kernels compile on first use, once per dtype, and numba caches them on disk (next to this
+package, else in numba's user cache directory, else in a temporary directory), so a new process
+loads them instead of compiling again. ``NUMBA_CACHE_DIR`` overrides the location.
 """
 from __future__ import annotations
 
+import functools
+import os
+import tempfile
 
+import torch
+
+from ..grid import SDFGrid
+from ..reference import TINY_DIRECTION, min_threshold
+from ..settings import TraceSettings
+
+FUSED_BACKENDS = ("cpu", "cuda")
+# Rays per chunk handed to a CPU thread: rays differ a lot in cost (misses leave at once, grazing
+# rays crawl), so threads take small chunks dynamically instead of one static half each.
+CPU_CHUNK = 256
+CUDA_THREADS_PER_BLOCK = 128
+
+
+def _writable_dir(path: str) -> bool:
+    try:
+        os.makedirs(path, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()
+        return True
+    except OSError:
+        return False
+
+
+def _configure_cache() -> None:
+    """Makes sure numba has somewhere writable to cache the kernels (set before they are defined)."""
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return
+    import numba
+    from numba.misc.appdirs import AppDirs
+
+    in_tree = os.path.join(os.path.dirname(os.path.abspath(__file__)), "__pycache__")
+    user_wide = AppDirs(appname="numba", appauthor=False).user_cache_dir
+    if _writable_dir(in_tree) or _writable_dir(user_wide):
+        return  # numba's own locators find these
+    fallback = os.path.join(tempfile.gettempdir(), f"sdfdiff-numba-cache-{os.getuid()}")
+    os.environ["NUMBA_CACHE_DIR"] = fallback
+    numba.config.CACHE_DIR = fallback
+
+
+@functools.lru_cache(maxsize=None)
+def _load_march():
+    _configure_cache()
+    from . import raymarch as march_module
+
+    return march_module
+
+
+@functools.lru_cache(maxsize=None)
 def available(backend: str) -> tuple[bool, str]:
     """(True, "") if the fused ``backend`` ("cpu" or "cuda") can run here, else (False, reason)."""
-    return False, "the fused kernels are not built in this version"
+    if backend not in FUSED_BACKENDS:
+        raise ValueError(f"backend must be one of {FUSED_BACKENDS}, got {backend!r}")
+    try:
+        _load_march()
+    except Exception as exc:  # numba missing or broken: the reference march still works
+        return False, f"numba is unusable ({type(exc).__name__}: {exc})"
+    if backend == "cpu":
+        return True, ""
+    if not torch.cuda.is_available():
+        return False, "torch sees no CUDA GPU"
+    try:
+        from numba import cuda
+    except Exception as exc:
+        return False, f"numba's CUDA target does not import ({type(exc).__name__}: {exc})"
+    try:
+        if not cuda.is_available():
+            return False, "numba's CUDA target finds no usable GPU or driver"
+    except Exception as exc:
+        return False, f"numba's CUDA target failed ({type(exc).__name__}: {exc})"
+    return True, ""
 
 
-def march(backend, grid, origins, directions, grid_index, pixel_angle, settings):
-    raise RuntimeError(available(backend)[1])
+def _params(grid: SDFGrid, settings: TraceSettings) -> tuple[torch.Tensor, torch.Tensor]:
+    """The grid and settings packed for the kernels (layout in renderer/kernels/raymarch.py)."""
+    march_module = _load_march()
+    dt, dev = grid.dtype, grid.device
+    lo, hi = grid.bbox_min, grid.bbox_max
+    res = torch.tensor(grid.resolution, dtype=dt, device=dev)
+    floor = min_threshold(grid)
+    fixed = settings.threshold is not None
+    consts = torch.tensor(
+        [0.0, 1.0, TINY_DIRECTION, floor, settings.threshold_scale,
+         max(float(settings.threshold), floor) if fixed else 0.0, -settings.inner_depth],
+        dtype=dt, device=dev)
+    # The same tensor expressions as the reference, so the kernels see bit-identical constants.
+    params = torch.cat([lo, hi, grid.voxel_size, (lo + hi) / 2, res - 1, res - 2, consts]).contiguous()
+    iparams = torch.tensor([*grid.resolution, settings.max_steps, settings.inner_steps, int(fixed)],
+                           dtype=torch.int64, device=dev)
+    assert params.numel() == march_module.N_PARAMS and iparams.numel() == march_module.N_IPARAMS
+    return params, iparams
+
+
+def _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings) -> int:
+    if not isinstance(grid, SDFGrid):
+        raise TypeError(f"grid must be an SDFGrid, got {type(grid).__name__}")
+    if not isinstance(settings, TraceSettings):
+        raise TypeError(f"settings must be a TraceSettings, got {type(settings).__name__}")
+    for name, x in (("origins", origins), ("directions", directions), ("grid_index", grid_index),
+                    ("pixel_angle", pixel_angle)):
+        if not isinstance(x, torch.Tensor):
+            raise TypeError(f"{name} must be a torch.Tensor, got {type(x).__name__}")
+        if x.device != grid.device:
+            raise ValueError(f"{name} is on {x.device} but the grid is on {grid.device}")
+    if origins.ndim != 2 or origins.shape[1] != 3:
+        raise ValueError(f"origins must have shape (R, 3), got {tuple(origins.shape)}")
+    r = origins.shape[0]
+    if directions.shape != (r, 3):
+        raise ValueError(f"directions must have shape ({r}, 3) like origins, got {tuple(directions.shape)}")
+    if grid_index.shape != (r,) or grid_index.dtype.is_floating_point or grid_index.dtype == torch.bool:
+        raise ValueError(f"grid_index must be an integer tensor of shape ({r},), got "
+                         f"{grid_index.dtype} {tuple(grid_index.shape)}")
+    if pixel_angle.shape != (r,):
+        raise ValueError(f"pixel_angle must have shape ({r},), got {tuple(pixel_angle.shape)}")
+    if r and (int(grid_index.min()) < 0 or int(grid_index.max()) >= grid.batch_size):
+        raise ValueError(f"grid_index must lie in [0, {grid.batch_size}) (the grid batch)")
+    return r
+
+
+@torch.no_grad()
+def march(
+    backend: str,
+    grid: SDFGrid,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    grid_index: torch.Tensor,
+    pixel_angle: torch.Tensor,
+    settings: TraceSettings,
+) -> dict[str, torch.Tensor]:
+    """Sphere-traces R rays with the fused kernel: the same contract as ``march_reference``.
+
+    Args:
+        backend: "cpu" or "cuda"; the tensors must be on that device.
+        grid: B grids, float32 or float64 (the march runs in that dtype).
+        origins, directions: (R, 3) world, unit directions.
+        grid_index: (R,) integer, the grid each ray reads.
+        pixel_angle: (R,) pixel footprint per unit distance.
+        settings: the march settings.
+    Returns:
+        dict with t (R,), hit (R,) bool, extreme (R, 3), t_extreme (R,) in the grid dtype and
+        steps (R,) int32, on the grid's device, detached.
+    """
+    if backend not in FUSED_BACKENDS:
+        raise ValueError(f"backend must be one of {FUSED_BACKENDS}, got {backend!r}")
+    ok, why = available(backend)
+    if not ok:
+        raise RuntimeError(f"backend={backend!r} is not available: {why}")
+    if (backend == "cuda") != (grid.device.type == "cuda"):
+        raise ValueError(f"backend={backend!r} cannot march a grid on device {grid.device}")
+    r = _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings)
+    dt, dev = grid.dtype, grid.device
+    values = grid.values.detach().contiguous()
+    params, iparams = _params(grid, settings)
+    inputs = [values, params, iparams, origins.detach().to(dt).contiguous(),
+              directions.detach().to(dt).contiguous(), grid_index.to(torch.int64).contiguous(),
+              pixel_angle.detach().to(dt).contiguous()]
+    out = {
+        "t": torch.empty(r, dtype=dt, device=dev),
+        "hit": torch.empty(r, dtype=torch.uint8, device=dev),
+        "extreme": torch.empty(r, 3, dtype=dt, device=dev),
+        "t_extreme": torch.empty(r, dtype=dt, device=dev),
+        "steps": torch.empty(r, dtype=torch.int32, device=dev),
+    }
+    if r:
+        if backend == "cpu":
+            _launch_cpu(inputs + list(out.values()))
+        else:
+            _launch_cuda(inputs + list(out.values()), r, dev)
+    out["hit"] = out["hit"].view(torch.bool)
+    return out
+
+
+def _launch_cpu(tensors: list[torch.Tensor]) -> None:
+    import numba
+
+    arrays = [x.numpy() for x in tensors]  # views: the kernel writes the output tensors in place
+    with numba.parallel_chunksize(CPU_CHUNK):
+        _load_march().march_rays_cpu(*arrays)
+
+
+def _launch_cuda(tensors: list[torch.Tensor], r: int, device: torch.device) -> None:
+    from numba import cuda
+
+    kernel = _load_march().make_cuda_kernel()
+    index = device.index if device.index is not None else torch.cuda.current_device()
+    with cuda.gpus[index]:
+        # Launch on torch's current stream: ordered after the ops that made the inputs and before
+        # those that read the outputs, without a synchronisation.
+        stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
+        arrays = [cuda.as_cuda_array(x, sync=False) for x in tensors]
+        blocks = (r + CUDA_THREADS_PER_BLOCK - 1) // CUDA_THREADS_PER_BLOCK
+        kernel[blocks, CUDA_THREADS_PER_BLOCK, stream](*arrays)
