@@ -1,0 +1,26 @@
+"""Single-view data: the NMR ShapeNet format (``nmr``), the procedural dataset in that format
+(``procedural``, built on the analytic CSG shapes of ``csg``), the Lightning DataModules
+(``datamodule``) and the batch contract (``types``).
+
+Names are imported lazily, so that ``import svr.data.types`` stays light.
+"""
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "SVRBatch": "types", "ShadingModel": "types", "collate_batch": "types",
+    "NMRDataset": "nmr", "NMR_CATEGORIES": "nmr", "prepare_nmr": "nmr",
+    "PROCEDURAL_CATEGORIES": "procedural", "ProceduralSettings": "procedural", "DEFAULT_SHADING": "procedural",
+    "generate_procedural_dataset": "procedural", "ensure_procedural_dataset": "procedural",
+    "make_shape": "procedural", "render_shape": "procedural", "voxelize_shape": "procedural",
+    "NMRDataModule": "datamodule", "ProceduralDataModule": "datamodule",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f".{_EXPORTS[name]}", __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -17,6 +17,17 @@ class ShadingModel:
     albedo: tuple[float, float, float]
     background: tuple[float, float, float]
 
+    def scene(self, effects: tuple[str, ...] = ("silhouette", "shading"), **kwargs):
+        """The renderer.Scene that shades like the dataset: one directional light (world frame),
+        ambient, albedo and background. ``kwargs`` go to Scene (e.g. ``silhouette_sigma``)."""
+        import renderer
+
+        return renderer.Scene(effects=effects,
+                              lights=(renderer.DirectionalLight(tuple(self.light_direction),
+                                                                float(self.light_intensity)),),
+                              ambient=float(self.ambient), albedo=tuple(self.albedo),
+                              background=tuple(self.background), **kwargs)
+
 
 @dataclass
 class SVRBatch:

@@ -1,0 +1,317 @@
+"""Lightning DataModules yielding ``SVRBatch`` from NMR-format folders (NMR ShapeNet or procedural).
+
+Training (SPEC section 5): each batch element is a random object, then ``views_per_sample`` (V = 2)
+distinct random views of it; view 0 is the network's input, all V supervise. The draws happen in
+the main process (``ObjectViewSampler``, seeded by ``seed`` and the epoch), so they do not depend on
+the number of workers.
+
+Evaluation (val and test): deterministic, one item per (object, view) in the order category,
+object, view, with V = 1: ``batch.images`` is (B, 1, 4, 64, 64), ``batch.view_ids`` (B, 1). The test
+loader covers all 24 views of every test object (the benchmark counts each view as one
+prediction); the validation loader can be thinned with ``val_views`` / ``val_objects_per_category``.
+
+Workers: the datasets hold no arrays when pickled; each worker opens the prepared ``.npy`` files
+memory-mapped, so the page cache holds one copy whatever ``num_workers``.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Iterator, Optional, Sequence
+
+import numpy as np
+import pytorch_lightning as pl
+import torch
+from torch.utils.data import DataLoader, Dataset, Sampler
+
+from .nmr import NUM_VIEWS, SPLITS, NMRDataset, prepare_nmr, resolve_categories
+from .procedural import (DEFAULT_SHADING, ProceduralSettings, ensure_procedural_dataset, load_shading,
+                         procedural_dataset_dir)
+from .types import ShadingModel, collate_batch
+
+PathLike = str | os.PathLike
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+class ObjectViewSampler(Sampler):
+    """Draws ``(object index, view ids)`` keys: per sample a random object (uniformly over objects,
+    or over categories first with ``category_balanced``, as SoftRas's loader did), then V distinct
+    random views.
+
+    The stream of an epoch depends only on ``seed`` and the epoch (``set_epoch``; Lightning calls it),
+    so a resumed run draws what the original would have.
+
+    Args:
+        counts: objects per category, in the dataset's order.
+        views_per_sample: V (1..24).
+        samples_per_epoch: keys per epoch.
+    """
+
+    def __init__(self, counts: Sequence[int], views_per_sample: int = 2, samples_per_epoch: int = 1000,
+                 seed: int = 0, category_balanced: bool = False, num_views: int = NUM_VIEWS):
+        self.counts = [int(c) for c in counts]
+        if sum(self.counts) == 0:
+            raise ValueError("the training split holds no objects")
+        if not 1 <= views_per_sample <= num_views:
+            raise ValueError(f"views_per_sample must lie in [1, {num_views}], got {views_per_sample}")
+        if samples_per_epoch < 1:
+            raise ValueError(f"samples_per_epoch must be positive, got {samples_per_epoch}")
+        self.views_per_sample = int(views_per_sample)
+        self.samples_per_epoch = int(samples_per_epoch)
+        self.seed = int(seed)
+        self.category_balanced = bool(category_balanced)
+        self.num_views = num_views
+        self.epoch = 0
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+    def __len__(self) -> int:
+        return self.samples_per_epoch
+
+    def __iter__(self) -> Iterator[tuple[int, tuple[int, ...]]]:
+        rng = np.random.default_rng([self.seed, self.epoch])
+        offsets = np.concatenate([[0], np.cumsum(self.counts)])
+        nonempty = [c for c, n in enumerate(self.counts) if n > 0]
+        total = int(offsets[-1])
+        for _ in range(self.samples_per_epoch):
+            if self.category_balanced:
+                c = nonempty[int(rng.integers(len(nonempty)))]
+                obj = int(offsets[c] + rng.integers(self.counts[c]))
+            else:
+                obj = int(rng.integers(total))
+            views = rng.choice(self.num_views, size=self.views_per_sample, replace=False)
+            yield obj, tuple(int(v) for v in views)
+
+
+class TrainViews(Dataset):
+    """Training items keyed by ``(object index, view ids)`` (see ``ObjectViewSampler``).
+
+    Item: images (V, 4, 64, 64) float32, view_ids (V,) long, voxels (32, 32, 32) bool, category,
+    object_index (ints).
+    """
+
+    def __init__(self, objects: NMRDataset):
+        self.objects = objects
+
+    def __len__(self) -> int:
+        return len(self.objects)
+
+    def __getitem__(self, key) -> dict:
+        obj, views = key
+        c, o = self.objects.locate(int(obj))
+        return {
+            "images": self.objects.views(obj, views),
+            "view_ids": torch.as_tensor(views, dtype=torch.long),
+            "voxels": self.objects.voxels(obj),
+            "category": c,
+            "object_index": o,
+        }
+
+
+class EvalViews(Dataset):
+    """Deterministic evaluation items: one per (object, view), ordered by category, object, view.
+
+    Item: images (1, 4, 64, 64) float32, view_ids (1,) long, voxels, category, object_index.
+
+    Args:
+        objects: the split's objects.
+        views: which views of each object (default all 24).
+        max_objects_per_category: keep only the first objects of each category (default all).
+    """
+
+    def __init__(self, objects: NMRDataset, views: Optional[Sequence[int]] = None,
+                 max_objects_per_category: Optional[int] = None):
+        self.objects = objects
+        self.views = list(range(NUM_VIEWS)) if views is None else [int(v) for v in views]
+        if not self.views or any(not 0 <= v < NUM_VIEWS for v in self.views):
+            raise ValueError(f"views must be a non-empty list of view ids in [0, {NUM_VIEWS}), got {views!r}")
+        if len(set(self.views)) != len(self.views):
+            raise ValueError(f"views must not repeat, got {views!r}")
+        if max_objects_per_category is not None and max_objects_per_category < 1:
+            raise ValueError(f"max_objects_per_category must be positive or None, got {max_objects_per_category}")
+        keep = []
+        for c, n in enumerate(objects.counts):
+            m = n if max_objects_per_category is None else min(n, max_objects_per_category)
+            keep.extend(int(objects.offsets[c]) + o for o in range(m))
+        self.object_ids = np.asarray(keep, dtype=np.int64)
+
+    def __len__(self) -> int:
+        return len(self.object_ids) * len(self.views)
+
+    def __getitem__(self, index: int) -> dict:
+        if not 0 <= index < len(self):
+            raise IndexError(f"index {index} out of range for {len(self)} items")
+        obj = int(self.object_ids[index // len(self.views)])
+        view = self.views[index % len(self.views)]
+        c, o = self.objects.locate(obj)
+        return {
+            "images": self.objects.views(obj, [view]),
+            "view_ids": torch.tensor([view], dtype=torch.long),
+            "voxels": self.objects.voxels(obj),
+            "category": c,
+            "object_index": o,
+        }
+
+
+class NMRDataModule(pl.LightningDataModule):
+    """Single-view data from an NMR-format folder.
+
+    Attributes:
+        categories: [(category id, name)], the order of ``SVRBatch.category`` indices.
+        shading: the dataset's ShadingModel (from its metadata.json), None for NMR ShapeNet.
+
+    Args:
+        root: folder with ``{cid}_{split}_{images,voxels}.npz`` (required; must exist).
+        categories: ids or names (default: all, see ``svr.data.nmr.resolve_categories``).
+        batch_size: training objects per batch (B); each brings ``views_per_sample`` views.
+        eval_batch_size: (object, view) items per validation/test batch.
+        views_per_sample: V, distinct views per training object (SPEC: 2).
+        samples_per_epoch: training samples per epoch (default: the training images / V).
+        category_balanced: draw a category first, then an object (SoftRas) instead of an object.
+        val_views, val_objects_per_category: thin the validation set (default: everything).
+        num_workers, pin_memory: DataLoader settings.
+        seed: seeds the training draws.
+        black_background: RGB fix for black-background images (``svr.data.nmr.images_to_float``).
+        prepared_dir: where the memory-mapped ``.npy`` files are or go (default: root).
+        prepare: ``prepare_data()`` converts missing ``.npy`` files (one-time, writes ~13 GB for the
+            full NMR set).
+    """
+
+    def __init__(self, root: Optional[PathLike], categories: Optional[Sequence[str]] = None, batch_size: int = 32,
+                 eval_batch_size: int = 64, views_per_sample: int = 2, samples_per_epoch: Optional[int] = None,
+                 category_balanced: bool = False, val_views: Optional[Sequence[int]] = None,
+                 val_objects_per_category: Optional[int] = None, num_workers: int = 0, pin_memory: bool = False,
+                 seed: int = 0, black_background: str = "composite", prepared_dir: Optional[PathLike] = None,
+                 prepare: bool = True):
+        super().__init__()
+        if root is None or str(root).strip() in ("", "???"):
+            raise ValueError("root must name the folder with the NMR ShapeNet npz files "
+                             "(set data.root=/path/to/NMR on the command line)")
+        root = Path(root).expanduser()
+        if not root.is_dir():
+            raise FileNotFoundError(f"NMR data folder does not exist: {root} (check data.root)")
+        self._init_common(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
+                          val_views, val_objects_per_category, num_workers, pin_memory, seed, black_background,
+                          prepared_dir, prepare)
+        self.root = root
+        self.categories: list[tuple[str, str]] = resolve_categories(root, categories)
+        self._category_keys = [c for c, _ in self.categories]
+        self.shading: Optional[ShadingModel] = load_shading(root)
+
+    def _init_common(self, batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
+                     val_views, val_objects_per_category, num_workers, pin_memory, seed, black_background,
+                     prepared_dir, prepare) -> None:
+        for name, value in (("batch_size", batch_size), ("eval_batch_size", eval_batch_size)):
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        if not isinstance(views_per_sample, int) or not 1 <= views_per_sample <= NUM_VIEWS:
+            raise ValueError(f"views_per_sample must be an int in [1, {NUM_VIEWS}], got {views_per_sample!r}")
+        if samples_per_epoch is not None and (not isinstance(samples_per_epoch, int) or samples_per_epoch < 1):
+            raise ValueError(f"samples_per_epoch must be a positive int or None, got {samples_per_epoch!r}")
+        if not isinstance(num_workers, int) or num_workers < 0:
+            raise ValueError(f"num_workers must be a non-negative int, got {num_workers!r}")
+        self.batch_size = batch_size
+        self.eval_batch_size = eval_batch_size
+        self.views_per_sample = views_per_sample
+        self.samples_per_epoch = samples_per_epoch
+        self.category_balanced = category_balanced
+        self.val_views = None if val_views is None else [int(v) for v in val_views]
+        self.val_objects_per_category = val_objects_per_category
+        self.num_workers = num_workers
+        self.pin_memory = pin_memory
+        self.seed = int(seed)
+        self.black_background = black_background
+        self.prepared_dir = None if prepared_dir is None else Path(prepared_dir).expanduser()
+        self.prepare = prepare
+        self._sets: dict[str, NMRDataset] = {}
+        self._sampler: Optional[ObjectViewSampler] = None
+
+    # ------------------------------------------------------------------ lightning hooks
+    def prepare_data(self) -> None:
+        """Converts missing ``.npy`` files once (rank 0 only, as Lightning calls it)."""
+        if self.prepare:
+            prepare_nmr(self.root, self.prepared_dir, self._category_keys, SPLITS)
+
+    def setup(self, stage: Optional[str] = None) -> None:
+        splits = {"fit": ("train", "val"), "validate": ("val",), "test": ("test",), "predict": ("test",),
+                  None: SPLITS}.get(stage, SPLITS)
+        for split in splits:
+            self.dataset(split)
+
+    def dataset(self, split: str) -> NMRDataset:
+        """The per-object NMRDataset of a split (opened on first use)."""
+        if split not in self._sets:
+            self._sets[split] = NMRDataset(self.root, split, self._category_keys, self.prepared_dir,
+                                           self.black_background)
+        return self._sets[split]
+
+    def train_sampler(self) -> ObjectViewSampler:
+        if self._sampler is None:
+            ds = self.dataset("train")
+            n = self.samples_per_epoch or max(1, len(ds) * NUM_VIEWS // self.views_per_sample)
+            self._sampler = ObjectViewSampler(ds.counts, self.views_per_sample, n, self.seed, self.category_balanced)
+        return self._sampler
+
+    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
+        return DataLoader(dataset, batch_size=batch_size, collate_fn=collate_batch, num_workers=self.num_workers,
+                          pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0, **kwargs)
+
+    def train_dataloader(self) -> DataLoader:
+        """Batches of ``batch_size`` random objects x V random views (drop_last: BatchNorm-safe)."""
+        return self._loader(TrainViews(self.dataset("train")), self.batch_size, sampler=self.train_sampler(),
+                            drop_last=len(self.train_sampler()) >= self.batch_size)
+
+    def val_dataloader(self) -> DataLoader:
+        """Every (object, view) of the val split (thinned by val_views / val_objects_per_category), V = 1."""
+        ds = EvalViews(self.dataset("val"), self.val_views, self.val_objects_per_category)
+        return self._loader(ds, self.eval_batch_size, shuffle=False)
+
+    def test_dataloader(self) -> DataLoader:
+        """All 24 views of every test object, V = 1 (the benchmark's predictions)."""
+        return self._loader(EvalViews(self.dataset("test")), self.eval_batch_size, shuffle=False)
+
+
+class ProceduralDataModule(NMRDataModule):
+    """The built-in procedural dataset (``svr.data.procedural``), generated on first use into
+    ``<cache_dir>/procedural-<hash of the settings>`` and reused afterwards.
+
+    Args:
+        cache_dir: where generated datasets live; a relative path is taken from the repository root.
+        categories: procedural category names or ids (default: all eight).
+        train, val, test: objects per category and split.
+        data_seed: the dataset's seed (which objects); ``seed`` seeds the training draws.
+        supersample: anti-aliasing rays per pixel side.
+        The other arguments are NMRDataModule's.
+    """
+
+    def __init__(self, cache_dir: PathLike = "data/cache", categories: Optional[Sequence[str]] = None,
+                 train: int = 32, val: int = 4, test: int = 6, data_seed: int = 0, supersample: int = 4,
+                 batch_size: int = 32, eval_batch_size: int = 64, views_per_sample: int = 2,
+                 samples_per_epoch: Optional[int] = None, category_balanced: bool = False,
+                 val_views: Optional[Sequence[int]] = None, val_objects_per_category: Optional[int] = None,
+                 num_workers: int = 0, pin_memory: bool = False, seed: int = 0, progress: bool = True):
+        pl.LightningDataModule.__init__(self)
+        self.settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample)
+        cache = Path(cache_dir).expanduser()
+        self.cache_dir = cache if cache.is_absolute() else REPO_ROOT / cache
+        self._init_common(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
+                          val_views, val_objects_per_category, num_workers, pin_memory, seed, "composite",
+                          None, False)
+        self.root = procedural_dataset_dir(self.cache_dir, self.settings)
+        self.categories = self.settings.category_pairs()
+        self._category_keys = [c for c, _ in self.categories]
+        self.shading = DEFAULT_SHADING
+        self.progress = progress
+
+    def prepare_data(self) -> None:
+        """Generates the dataset if its cache folder does not exist yet."""
+        ensure_procedural_dataset(self.cache_dir, self.settings, progress=self.progress)
+
+    def dataset(self, split: str) -> NMRDataset:
+        if split not in self._sets and not self.root.exists():
+            self.prepare_data()  # used outside a Trainer
+        return super().dataset(split)
+
+
+__all__ = ["ObjectViewSampler", "TrainViews", "EvalViews", "NMRDataModule", "ProceduralDataModule"]
