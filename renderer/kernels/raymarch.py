@@ -22,8 +22,11 @@ component, the threshold floor, the threshold scale, the fixed threshold and ``-
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.extending import overload
 
 # numba.cuda, imported by make_cuda_kernel() on first use only (it resolves when the body compiles).
 cuda = None
@@ -35,6 +38,34 @@ N_PARAMS = 25
 # int parameters
 NX, NY, NZ, MAX_STEPS, INNER_STEPS, USE_FIXED = 0, 1, 2, 3, 4, 5
 N_IPARAMS = 6
+
+
+def floor_float(x):
+    """floor(x) in x's own float type (np.floor has no scalar version on numba's CUDA target)."""
+    return np.floor(x)
+
+
+@overload(floor_float, target="generic")
+def _floor_float_impl(x):
+    if isinstance(x, types.Float):
+        cast = x
+
+        def impl(x):
+            return cast(math.floor(x))
+
+        return impl
+    return None
+
+
+# min/max of two floats (the builtins fail to type on numba's built-in CUDA target).
+@njit(cache=True, _nrt=False)
+def _min(a, b):
+    return b if b < a else a
+
+
+@njit(cache=True, _nrt=False)
+def _max(a, b):
+    return b if b > a else a
 
 
 @njit(cache=True, _nrt=False)
@@ -52,18 +83,18 @@ def box_interval(ox, oy, oz, dx, dy, dz, params):
     inv = _safe_inverse(dx, params)
     t1 = (params[LO] - ox) * inv
     t2 = (params[HI] - ox) * inv
-    near = min(t1, t2)
-    far = max(t1, t2)
+    near = _min(t1, t2)
+    far = _max(t1, t2)
     inv = _safe_inverse(dy, params)
     t1 = (params[LO + 1] - oy) * inv
     t2 = (params[HI + 1] - oy) * inv
-    near = max(near, min(t1, t2))
-    far = min(far, max(t1, t2))
+    near = _max(near, _min(t1, t2))
+    far = _min(far, _max(t1, t2))
     inv = _safe_inverse(dz, params)
     t1 = (params[LO + 2] - oz) * inv
     t2 = (params[HI + 2] - oz) * inv
-    near = max(near, min(t1, t2))
-    far = min(far, max(t1, t2))
+    near = _max(near, _min(t1, t2))
+    far = _min(far, _max(t1, t2))
     return near, far
 
 
@@ -75,7 +106,7 @@ def _cell(p, axis, params):
         u = params[ZERO]
     if u > params[TOP + axis]:
         u = params[TOP + axis]
-    corner = np.floor(u)
+    corner = floor_float(u)
     if corner > params[CELL_MAX + axis]:
         corner = params[CELL_MAX + axis]
     return int(corner), u - corner
@@ -133,9 +164,9 @@ def march_ray(values, params, iparams, ox, oy, oz, dx, dy, dz, b, pixel_angle):
         tc = ((params[CENTRE] - ox) * dx + (params[CENTRE + 1] - oy) * dy) + (params[CENTRE + 2] - oz) * dz
         if tc < zero:
             tc = zero
-        ex = min(max(ox + tc * dx, params[LO]), params[HI])
-        ey = min(max(oy + tc * dy, params[LO + 1]), params[HI + 1])
-        ez = min(max(oz + tc * dz, params[LO + 2]), params[HI + 2])
+        ex = _min(_max(ox + tc * dx, params[LO]), params[HI])
+        ey = _min(_max(oy + tc * dy, params[LO + 1]), params[HI + 1])
+        ez = _min(_max(oz + tc * dz, params[LO + 2]), params[HI + 2])
         return zero, False, ex, ey, ez, tc, 0
 
     # The start sample decides the sign and is also the march's first sample (same point).
