@@ -159,27 +159,26 @@ class SDFGrid:
         """
         flat, b, shape = self._flatten(points, batch_index)
         i0, w = self._cells(flat)
-        nx, ny, nz = self.resolution
-        size = (nx, ny, nz)
-        vox = self.voxel_size
         values = self.values.reshape(-1)
-        grad = torch.zeros(flat.shape[0], 3, dtype=values.dtype, device=values.device)
-        for corner in range(8):
-            di, dj, dk = (corner >> 2) & 1, (corner >> 1) & 1, corner & 1
-            idx = [i0[:, 0] + di, i0[:, 1] + dj, i0[:, 2] + dk]
-            wc = ((w[:, 0] if di else 1 - w[:, 0]) * (w[:, 1] if dj else 1 - w[:, 1])
-                  * (w[:, 2] if dk else 1 - w[:, 2]))
-            comps = []
-            for axis in range(3):
-                hi_idx = list(idx)
-                lo_idx = list(idx)
-                hi_idx[axis] = torch.clamp(idx[axis] + 1, max=size[axis] - 1)
-                lo_idx[axis] = torch.clamp(idx[axis] - 1, min=0)
-                # One-sided differences on the box faces: divide by the real spacing.
-                span = (hi_idx[axis] - lo_idx[axis]).to(values.dtype) * vox[axis]
-                diff = values[self._flat_index(b, *hi_idx)] - values[self._flat_index(b, *lo_idx)]
-                comps.append(diff / span)
-            grad = grad + wc[:, None] * torch.stack(comps, dim=-1)
+        dt, dev = values.dtype, values.device
+        size = torch.tensor(self.resolution, device=dev)
+        strides = torch.tensor([self.resolution[1] * self.resolution[2], self.resolution[2], 1], device=dev)
+        bits = _CORNER_BITS.to(dev)
+        corner = i0[:, None, :] + bits  # (R, 8, 3) vertex indices of the cell's corners
+        # One-sided differences on the box faces: divide by the real spacing.
+        hi = torch.minimum(corner + 1, size - 1)
+        lo = torch.clamp(corner - 1, min=0)
+        span = (hi - lo).to(dt) * self.voxel_size
+        at = self._flat_index(b[:, None], corner[..., 0], corner[..., 1], corner[..., 2])  # (R, 8)
+        stencil = at[..., None, None] + torch.stack([(hi - corner) * strides, (lo - corner) * strides], dim=-1)
+        # All 48 stencil values in one gather: one scatter into the grid's gradient in backward.
+        ends = _gather(values, stencil)  # (R, 8, 3, 2)
+        comps = (ends[..., 0] - ends[..., 1]) / span  # (R, 8, 3): the gradient at each corner
+        wsel = torch.where(bits.bool(), w[:, None, :], 1 - w[:, None, :])
+        terms = (wsel[..., 0] * wsel[..., 1] * wsel[..., 2])[..., None] * comps
+        grad = torch.zeros(flat.shape[0], 3, dtype=dt, device=dev)
+        for c in range(8):  # summed corner by corner, in a fixed order
+            grad = grad + terms[:, c]
         return grad.reshape(*shape, 3)
 
     def _flatten(self, points: torch.Tensor, batch_index: torch.Tensor | None):
@@ -207,26 +206,14 @@ class SDFGrid:
 
     def _sample_flat(self, values: torch.Tensor, points: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         i0, w = self._cells(points)
-        i, j, k = i0[:, 0], i0[:, 1], i0[:, 2]
-        wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
-        nx, ny, nz = self.resolution
-        base = self._flat_index(b, i, j, k)
-        sx, sy = ny * nz, nz
-        c000 = values[base]
-        c001 = values[base + 1]
-        c010 = values[base + sy]
-        c011 = values[base + sy + 1]
-        c100 = values[base + sx]
-        c101 = values[base + sx + 1]
-        c110 = values[base + sx + sy]
-        c111 = values[base + sx + sy + 1]
-        c00 = c000 + (c001 - c000) * wz
-        c01 = c010 + (c011 - c010) * wz
-        c10 = c100 + (c101 - c100) * wz
-        c11 = c110 + (c111 - c110) * wz
-        c0 = c00 + (c01 - c00) * wy
-        c1 = c10 + (c11 - c10) * wy
-        return c0 + (c1 - c0) * wx
+        base = self._flat_index(b, i0[:, 0], i0[:, 1], i0[:, 2])
+        offsets = (_CORNER_BITS.to(points.device) * torch.tensor(
+            [self.resolution[1] * self.resolution[2], self.resolution[2], 1], device=points.device)).sum(-1)
+        # The 8 corners in one gather, ordered c000, c001, c010, ..., c111 (bits x, y, z).
+        c = _gather(values, base[:, None] + offsets)  # (R, 8)
+        c = c[:, 0::2] + (c[:, 1::2] - c[:, 0::2]) * w[:, 2:3]  # along z: c00, c01, c10, c11
+        c = c[:, 0::2] + (c[:, 1::2] - c[:, 0::2]) * w[:, 1:2]  # along y: c0, c1
+        return c[:, 0] + (c[:, 1] - c[:, 0]) * w[:, 0]
 
     # ------------------------------------------------------------------ whole-grid operations
     def vertex_gradient(self) -> torch.Tensor:
@@ -245,6 +232,16 @@ class SDFGrid:
         v = self.values.unsqueeze(1)
         out = torch.nn.functional.interpolate(v, size=res, mode="trilinear", align_corners=True)
         return SDFGrid(out.squeeze(1), self.bbox_min, self.bbox_max)
+
+
+# (8, 3) the offsets of a cell's corners, corner c = (c >> 2 & 1, c >> 1 & 1, c & 1).
+_CORNER_BITS = torch.tensor([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])
+
+
+def _gather(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """values (M,) at a long index of any shape. index_select, whose backward is one index_add_ into
+    the gradient (a plain ``values[index]`` is slower both ways)."""
+    return values.index_select(0, index.reshape(-1)).view(index.shape)
 
 
 def _resolution3(resolution: Union[int, Sequence[int]]) -> tuple[int, int, int]:
