@@ -2,6 +2,7 @@
 
     python data/make_procedural.py [--cache-dir data/cache | --out DIR] [--train 32 --val 4 --test 6]
                                    [--categories chair mug ...] [--seed 0] [--supersample 4]
+                                   [--voxel-rule centre|protocol]
 
 With --cache-dir (the default, ``data/cache``) the dataset goes to
 ``<cache-dir>/procedural-<hash of the settings>`` and is reused if it exists, exactly as the
@@ -34,10 +35,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--test", type=int, default=defaults.test)
     parser.add_argument("--seed", type=int, default=defaults.seed)
     parser.add_argument("--supersample", type=int, default=defaults.supersample, help="rays per pixel side")
+    parser.add_argument("--voxel-rule", default=defaults.voxel_rule, choices=("centre", "protocol"),
+                        help="ground-truth voxels: centre inside (SPEC) or the benchmark's voxelisation")
     args = parser.parse_args(argv)
     try:
         settings = ProceduralSettings(tuple(args.categories or ()), args.train, args.val, args.test, args.seed,
-                                      args.supersample)
+                                      args.supersample, args.voxel_rule)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 1

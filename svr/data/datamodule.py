@@ -282,17 +282,19 @@ class ProceduralDataModule(NMRDataModule):
         train, val, test: objects per category and split.
         data_seed: the dataset's seed (which objects); ``seed`` seeds the training draws.
         supersample: anti-aliasing rays per pixel side.
+        voxel_rule: "centre" or "protocol" ground-truth voxels (``ProceduralSettings``).
         The other arguments are NMRDataModule's.
     """
 
     def __init__(self, cache_dir: PathLike = "data/cache", categories: Optional[Sequence[str]] = None,
                  train: int = 32, val: int = 4, test: int = 6, data_seed: int = 0, supersample: int = 4,
-                 batch_size: int = 32, eval_batch_size: int = 64, views_per_sample: int = 2,
+                 voxel_rule: str = "centre", batch_size: int = 32, eval_batch_size: int = 64, views_per_sample: int = 2,
                  samples_per_epoch: Optional[int] = None, category_balanced: bool = False,
                  val_views: Optional[Sequence[int]] = None, val_objects_per_category: Optional[int] = None,
                  num_workers: int = 0, pin_memory: bool = False, seed: int = 0, progress: bool = True):
         pl.LightningDataModule.__init__(self)
-        self.settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample)
+        self.settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample,
+                                           voxel_rule)
         cache = Path(cache_dir).expanduser()
         self.cache_dir = cache if cache.is_absolute() else REPO_ROOT / cache
         self._init_common(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,

@@ -259,6 +259,23 @@ def test_voxels_and_views_of_the_written_dataset_agree(tiny_procedural):
         assert _silhouette_iou(np.ascontiguousarray(wrong(voxels)), alpha, [2, 11]) < good - 0.05
 
 
+def test_protocol_voxel_rule_makes_the_benchmark_protocol_exact():
+    """With voxel_rule="protocol" the ground truth holds the centre-rule voxels plus the surface
+    layer, and the protocol IoU of an exact 64^3 prediction is close to 1 (it is ~0.6 with the
+    centre rule: tests/svr/test_metrics.py)."""
+    from svr.metrics import iou_protocol
+
+    shape = make_shape("mug", [6])
+    centre = voxelize_shape(shape)
+    prot = voxelize_shape(shape, rule="protocol")
+    assert prot[centre].all() and prot.sum() > 1.3 * centre.sum()
+    grid = renderer.SDFGrid.from_function(lambda p: torch.from_numpy(shape.sdf_numpy(p.numpy())), 64, -0.6, 0.6,
+                                          dtype=torch.float64).values
+    assert iou_protocol(grid, prot[None], -0.6, 0.6).item() > 0.97
+    with pytest.raises(ValueError, match="rule must be one of"):
+        voxelize_shape(shape, rule="surface")
+
+
 # ------------------------------------------------------------------------------------ files
 
 

@@ -1,0 +1,304 @@
+"""Voxel IoU: the benchmark's voxelisation rules, the NMR frame, the fill, analytic spheres, the gap
+between the fast direct variant and the protocol, and the per-category table."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+import renderer
+from svr import geometry
+from svr.data.procedural import make_shape, voxelize_shape
+from svr.geometry import (fill_enclosed, nmr_voxel_centres, voxelize_mesh_nmr, voxelize_sdf_direct,
+                          voxelize_sdf_protocol, voxels_to_sdf)
+from svr.metrics import (PAPER_SDFDIFF_IOU, PROTOCOL_LIKE_LEVEL, iou_direct, iou_protocol, iou_table, voxel_iou,
+                         voxels_protocol)
+
+R = 32
+BOX = (-0.6, 0.6)
+
+
+def world_of_voxel_units(u: np.ndarray) -> np.ndarray:
+    """The benchmark's scaling inverted: voxel units u = 31 v + 16 -> world v."""
+    return (np.asarray(u, float) - R / 2) / (R - 1)
+
+
+def sphere_grid(radius: float, centre=(0.0, 0.0, 0.0), n: int = 64) -> torch.Tensor:
+    c = torch.tensor(centre, dtype=torch.float64)
+    return renderer.SDFGrid.from_function(lambda p: (p - c).norm(dim=-1) - radius, n, *BOX,
+                                          dtype=torch.float64).values
+
+
+def analytic_grid(shape, n: int = 64) -> torch.Tensor:
+    """(1, n, n, n) samples of a shape's analytic SDF over BOX (renderer.SDFGrid layout)."""
+    return renderer.SDFGrid.from_function(lambda p: torch.from_numpy(shape.sdf_numpy(p.numpy())), n, *BOX,
+                                          dtype=torch.float64).values
+
+
+def centre_voxels(fn) -> np.ndarray:
+    """Ground truth by the SPEC's definition: occupied iff the voxel centre is inside."""
+    return (fn(nmr_voxel_centres(dtype=torch.float64)) < 0).numpy()
+
+
+# ------------------------------------------------------------------------------------ frame
+
+
+def test_voxel_centres_follow_the_spec_frame():
+    c = nmr_voxel_centres().numpy()
+    i, j, k = 3, 20, 7
+    np.testing.assert_allclose(c[i, j, k], [(j - 15.5) / 31, (i - 15.5) / 31, (15.5 - k) / 31], atol=1e-7)
+    np.testing.assert_allclose(c[0, 0, 0], [-0.5, -0.5, 0.5], atol=1e-7)
+    np.testing.assert_allclose(c[31, 31, 31], [0.5, 0.5, -0.5], atol=1e-7)
+
+
+def test_xyz_and_nmr_orders_are_inverse_and_match_the_centres():
+    rng = np.random.default_rng(0)
+    vox = rng.random((R, R, R)) < 0.3
+    xyz = geometry.nmr_to_xyz_voxels(vox)
+    np.testing.assert_array_equal(geometry.xyz_to_nmr_voxels(xyz), vox)
+    np.testing.assert_array_equal(geometry.xyz_to_nmr_voxels(torch.from_numpy(xyz.copy())).numpy(), vox)
+    # xyz[a, b, c] sits at x increasing with a, y with b, z with c
+    cx = geometry.nmr_to_xyz_voxels(nmr_voxel_centres().numpy().transpose(3, 0, 1, 2)[0])
+    cy = geometry.nmr_to_xyz_voxels(nmr_voxel_centres().numpy().transpose(3, 0, 1, 2)[1])
+    cz = geometry.nmr_to_xyz_voxels(nmr_voxel_centres().numpy().transpose(3, 0, 1, 2)[2])
+    assert np.all(np.diff(cx, axis=0) > 0) and np.all(np.diff(cy, axis=1) > 0) and np.all(np.diff(cz, axis=2) > 0)
+
+
+def test_a_box_lands_where_the_frame_says():
+    centre = np.array([0.2, -0.1, 0.3])
+    mesh = trimesh.creation.box(extents=(0.13, 0.13, 0.13))
+    mesh.apply_translation(centre)
+    vox = voxelize_mesh_nmr(mesh.vertices, mesh.faces)
+    idx = np.argwhere(vox).mean(0)
+    expect = [centre[1] * 31 + 15.5, centre[0] * 31 + 15.5, 15.5 - centre[2] * 31]
+    np.testing.assert_allclose(idx, expect, atol=0.6)
+    assert vox.sum() >= 4 ** 3  # solid: the fill closes the inside
+
+
+# ------------------------------------------------------------------------------------ rules
+
+
+def test_one_triangle_marks_its_lattice_hits_their_neighbours_and_its_vertices():
+    """Worked by hand: a triangle in the plane z_u = 10.3 (voxel units) meets the z lattice lines
+    (6, 6), (6, 7) (on its edge) and (7, 6); each marks the four voxels around it at z index 10;
+    the vertices mark theirs; the triangle is edge-on to the x and y projections."""
+    tri_u = np.array([[5.5, 5.5, 10.3], [7.5, 5.5, 10.3], [5.5, 7.5, 10.3]])
+    vox = voxelize_mesh_nmr(world_of_voxel_units(tri_u), np.array([[0, 1, 2]]))
+    expect_xy = {(5, 5), (5, 6), (6, 5), (6, 6), (5, 7), (6, 7), (7, 5), (7, 6)}
+    got = {(int(j), int(i)) for i, j, k in np.argwhere(vox)}
+    assert got == expect_xy
+    assert set(np.argwhere(vox)[:, 2].tolist()) == {31 - 10}
+
+
+def test_vertex_voxels_alone_mark_a_tiny_triangle():
+    tri_u = np.array([[3.2, 4.2, 5.2], [3.3, 4.3, 5.25], [3.25, 4.2, 5.3]])
+    vox = voxelize_mesh_nmr(world_of_voxel_units(tri_u), np.array([[0, 1, 2]]))
+    assert np.argwhere(vox).tolist() == [[4, 3, 31 - 5]]
+
+
+def test_compiled_rasteriser_matches_its_python_source():
+    rng = np.random.default_rng(1)
+    tri = rng.uniform(-2, 34, size=(300, 3, 3))
+    tri[:100] = tri[:100, :1] + rng.normal(scale=1.5, size=(100, 3, 3))  # small triangles
+    a = np.zeros((R, R, R), np.uint8)
+    b = np.zeros((R, R, R), np.uint8)
+    geometry._rasterize_triangles_py(tri, a)
+    geometry._rasterizer()(tri, b)
+    np.testing.assert_array_equal(a, b)
+    assert a.sum() > 100
+
+
+def test_geometry_outside_the_grid_is_dropped():
+    mesh = trimesh.creation.icosphere(radius=0.1)
+    mesh.apply_translation([2.0, 0.0, 0.0])
+    assert not voxelize_mesh_nmr(mesh.vertices, mesh.faces).any()
+    assert not voxelize_mesh_nmr(np.zeros((0, 3)), np.zeros((0, 3), int)).any()
+
+
+def _shell(hole: str = "") -> np.ndarray:
+    v = np.zeros((R, R, R), bool)
+    v[8:24, 8:24, 8:24] = True
+    v[9:23, 9:23, 9:23] = False
+    if hole == "face":
+        v[15, 15, 8] = False  # a 6-connected opening
+    return v
+
+
+def test_fill_closes_a_shell_and_leaves_a_shell_with_a_hole_hollow():
+    closed = fill_enclosed(_shell())
+    assert closed[9:23, 9:23, 9:23].all()
+    opened = fill_enclosed(_shell("face"))
+    assert not opened[9:23, 9:23, 9:23].any()
+    np.testing.assert_array_equal(opened, _shell("face"))
+
+
+def test_fill_uses_six_connectivity():
+    v = np.zeros((R, R, R), bool)
+    v[8:24, 8:24, 8:24] = True
+    v[9:23, 9:23, 9:23] = False
+    v[8, 12, 12] = False          # a hole in the wall at x index 8 ...
+    v[9, 12, 12] = True           # ... blocked behind by a voxel,
+    v[9, 13, 12] = False          # the cavity is diagonal to the hole only (touches along an edge)
+    out = fill_enclosed(v)
+    assert out[12, 12, 12]        # the cavity is filled: the edge contact does not connect it
+    assert not out[8, 12, 12]     # the hole itself reaches the border, so it stays empty
+
+
+def test_mesh_voxelisation_fills_a_closed_mesh_but_not_an_open_one():
+    closed = trimesh.creation.icosphere(subdivisions=3, radius=0.3)
+    vox = voxelize_mesh_nmr(closed.vertices, closed.faces)
+    assert vox[15:17, 15:17, 15:17].all()
+    opened = closed.copy()
+    keep = opened.triangles_center[:, 1] < 0.2  # cut a cap off the top
+    opened.update_faces(keep)
+    vox_open = voxelize_mesh_nmr(opened.vertices, opened.faces)
+    assert not vox_open[15:17, 15:17, 15:17].any()
+
+
+# ------------------------------------------------------------------------------------ IoU
+
+
+def test_iou_basics():
+    a = np.zeros((2, R, R, R), bool)
+    a[:, :4] = True
+    b = np.zeros_like(a)
+    b[0, :2] = True
+    np.testing.assert_allclose(voxel_iou(a, a).numpy(), [1.0, 1.0])
+    np.testing.assert_allclose(voxel_iou(a, b).numpy(), [0.5, 0.0])
+    assert voxel_iou(np.zeros((R, R, R), bool), np.zeros((R, R, R), bool)).item() == 1.0
+    assert voxel_iou(torch.from_numpy(a).int(), a).tolist() == [1.0, 1.0]
+
+
+def test_ground_truth_against_itself_is_one():
+    gt = voxelize_shape(make_shape("chair", [0, 3]))
+    assert voxel_iou(gt, gt).item() == 1.0
+    values, lo, hi = voxels_to_sdf(gt)
+    grid = torch.from_numpy(values)[None]
+    assert iou_direct(grid, gt[None], lo, hi).item() == 1.0
+    # The protocol's voxels of the same surface contain the ground truth (it only adds voxels).
+    prot = voxels_protocol(grid, lo, hi)[0].numpy()
+    assert prot[gt].all()
+
+
+def _lens_volume(r1: float, r2: float, d: float) -> float:
+    return math.pi * (r1 + r2 - d) ** 2 * (d * d + 2 * d * r2 - 3 * r2 * r2 + 2 * d * r1 + 6 * r1 * r2 - 3 * r1 * r1) / (12 * d)
+
+
+def test_two_overlapping_spheres_give_the_analytic_iou():
+    """Direct IoU of sphere A (prediction, an SDF grid) against sphere B (centre-sampled voxels),
+    against the lens formula; the discretisation error of 1/31 voxels is about 0.02 here."""
+    ra, rb, d = 0.3, 0.25, 0.2
+    ca, cb = np.array([-0.08, 0.02, 0.05]), np.array([0.12, 0.02, 0.05])
+    inter = _lens_volume(ra, rb, d)
+    analytic = inter / (4 / 3 * math.pi * (ra ** 3 + rb ** 3) - inter)
+    gt = centre_voxels(lambda p: (p - torch.from_numpy(cb)).norm(dim=-1) - rb)
+    got = iou_direct(sphere_grid(ra, ca), gt[None], *BOX).item()
+    assert abs(got - analytic) < 0.02, (got, analytic)
+
+
+def test_nested_spheres_direct_and_protocol():
+    """Sphere r1 predicted inside ground-truth sphere r2: the direct IoU is (r1/r2)^3 within the
+    discretisation error; the protocol's surface voxels make the prediction one dilation layer
+    larger, so its IoU lies between (r1/r2)^3 and ((r1 + sqrt(3)/31)/r2)^3."""
+    r1, r2 = 0.25, 0.4
+    gt = centre_voxels(lambda p: p.norm(dim=-1) - r2)
+    grid = sphere_grid(r1)
+    direct = iou_direct(grid, gt[None], *BOX).item()
+    assert abs(direct - (r1 / r2) ** 3) < 0.02
+    prot = iou_protocol(grid, gt[None], *BOX).item()
+    assert (r1 / r2) ** 3 < prot < ((r1 + math.sqrt(3) / 31) / r2) ** 3
+    # Against protocol-made ground truth of the same sphere, the protocol is exact.
+    same = voxelize_sdf_protocol(sphere_grid(r1, n=96)[0], *BOX)
+    assert iou_protocol(grid, same[None], *BOX).item() > 0.97
+
+
+def test_direct_voxels_are_empty_outside_the_grid_box():
+    grid = torch.full((1, 8, 8, 8), -1.0)  # everything inside, but the box is small
+    vox = voxelize_sdf_direct(grid, -0.2, 0.2)[0].numpy()
+    centres = nmr_voxel_centres().numpy()
+    np.testing.assert_array_equal(vox, (np.abs(centres) <= 0.2).all(-1))
+
+
+def test_gap_between_direct_and_protocol_iou_on_procedural_shapes(capsys):
+    """How far the fast validation IoU is from the benchmark's, for perfect predictions (the
+    analytic SDF sampled on a 64^3 grid) against centre-sampled ground truth. The protocol adds a
+    dilated surface layer: thin parts (1-3 voxels) double in volume, so it sits far below. The
+    direct IoU at PROTOCOL_LIKE_LEVEL tracks the protocol's instead."""
+    rows = []
+    for name, seed in (("chair", 1), ("mug", 2), ("sofa", 3), ("airplane", 4)):
+        shape = make_shape(name, [8, seed])
+        gt = voxelize_shape(shape)[None]
+        grid = analytic_grid(shape)
+        rows.append((name, iou_direct(grid, gt, *BOX).item(), iou_protocol(grid, gt, *BOX).item(),
+                     iou_direct(grid, gt, *BOX, level=PROTOCOL_LIKE_LEVEL).item()))
+    with capsys.disabled():
+        print("\n  IoU of exact predictions, direct / protocol / direct at PROTOCOL_LIKE_LEVEL: "
+              + ", ".join(f"{n} {d:.3f}/{p:.3f}/{q:.3f}" for n, d, p, q in rows))
+    direct, prot, like = (np.array([r[k] for r in rows]) for k in (1, 2, 3))
+    assert direct.min() > 0.85  # a 64^3 grid (0.6 voxel) blurs parts 1.5 voxels thick
+    assert np.all(prot < direct) and np.all(prot > 0.35)
+    assert 0.1 < (direct - prot).mean() < 0.6
+    assert np.abs(like - prot).mean() < 0.05
+
+
+@pytest.mark.slow
+def test_gap_between_direct_and_protocol_iou_all_categories(capsys):
+    from svr.data.procedural import PROCEDURAL_CATEGORIES
+
+    gaps = {}
+    for cat in PROCEDURAL_CATEGORIES:
+        vals = []
+        for seed in range(4):
+            shape = make_shape(cat.name, [8, 100 + seed])
+            gt = voxelize_shape(shape)[None]
+            grid = analytic_grid(shape)
+            vals.append((iou_direct(grid, gt, *BOX).item(), iou_protocol(grid, gt, *BOX).item()))
+        gaps[cat.name] = np.mean(vals, axis=0)
+    with capsys.disabled():
+        for name, (d, p) in gaps.items():
+            print(f"  {name:9s} direct {d:.3f} protocol {p:.3f} gap {d - p:.3f}")
+    assert all(d > 0.9 for d, _ in gaps.values())
+
+
+# ------------------------------------------------------------------------------------ tables
+
+
+def test_table_means_per_category_then_over_categories():
+    cats = [("02691156", "airplane"), ("03001627", "chair"), ("04379243", "table")]
+    iou = np.array([0.5, 0.7, 0.9, 0.2])
+    index = np.array([0, 0, 0, 1])
+    table = iou_table(iou, index, cats)
+    assert [r.images for r in table.rows] == [3, 1, 0]
+    assert table.rows[0].iou == pytest.approx(0.7) and table.rows[1].iou == pytest.approx(0.2)
+    assert math.isnan(table.rows[2].iou)
+    assert table.mean == pytest.approx((0.7 + 0.2) / 2)  # unweighted, empty category left out
+    d = table.to_dict()
+    json.dumps(d)
+    assert d["categories"][1] == {"id": "03001627", "name": "chair", "iou": 0.2, "images": 1}
+    md = table.to_markdown(PAPER_SDFDIFF_IOU)
+    assert "| chair | 03001627 | 1 | 0.2000 | 0.6436 |" in md
+    assert md.splitlines()[-1].startswith("| **mean** |")
+
+
+def test_bad_input_is_refused():
+    v = np.zeros((R, R, R), bool)
+    with pytest.raises(ValueError, match="shapes differ"):
+        voxel_iou(v, np.zeros((16, 16, 16), bool))
+    with pytest.raises(TypeError, match="pred must be bool"):
+        voxel_iou(v.astype(np.float32), v)
+    with pytest.raises(ValueError, match="gt must have shape"):
+        voxel_iou(v, np.zeros((R, R), bool))
+    with pytest.raises(ValueError, match="values has 2 grids but gt has 1"):
+        iou_direct(torch.zeros(2, 8, 8, 8), v[None])
+    with pytest.raises(TypeError, match="floating-point"):
+        iou_protocol(torch.zeros(1, 8, 8, 8, dtype=torch.long), v[None])
+    with pytest.raises(ValueError, match=r"category_index must lie in \[0, 1\)"):
+        iou_table([0.5], [1], [("1", "a")])
+    with pytest.raises(ValueError, match="faces index vertices out of range"):
+        voxelize_mesh_nmr(np.zeros((3, 3)), np.array([[0, 1, 3]]))
+    with pytest.raises(ValueError, match="vertices must have shape"):
+        voxelize_mesh_nmr(np.zeros((3, 2)), np.array([[0, 1, 2]]))
