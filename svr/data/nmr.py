@@ -413,7 +413,7 @@ class NMRDataset(torch.utils.data.Dataset):
         c, o = self.locate(index)
         images = self._open()[c][0]
         if view_ids is None:
-            return np.asarray(images[o])
+            return np.array(images[o])  # a copy: the memory map is read-only
         return np.asarray(images[o][np.asarray(view_ids, dtype=np.int64)])
 
     def views(self, index: int, view_ids: Optional[Sequence[int]] = None) -> torch.Tensor:

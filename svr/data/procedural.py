@@ -537,7 +537,7 @@ class ProceduralSettings:
     """
 
     categories: tuple[str, ...] = ()
-    train: int = 40
+    train: int = 32
     val: int = 4
     test: int = 6
     seed: int = 0
