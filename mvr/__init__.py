@@ -1,0 +1,32 @@
+"""Multi-view 3D reconstruction with the differentiable SDF renderer (SDFDiff, paper section 5).
+
+From a target (a built-in shape or a watertight mesh file) rendered from the 26 views of a cube
+rig, fit an SDF grid coarse to fine, starting from a sphere, and measure the error of its mesh:
+
+    >>> from mvr import reconstruct, Schedule
+    >>> result = reconstruct("torus", "outputs/mvr/torus", schedule=Schedule(end=32, levels=3))  # doctest: +SKIP
+    >>> result.metrics["hausdorff_rel"]  # doctest: +SKIP
+
+Command line: ``python -m mvr target=torus out_dir=outputs/mvr/torus`` (configs/mvr.yaml).
+"""
+from .losses import eikonal_loss, image_loss, laplacian_loss, silhouette_loss
+from .metrics import SurfaceDistances, surface_distances
+from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
+from .raycast import RayHits, TriangleGrid
+from .reconstruct import (EvalSettings, GridSettings, NoiseSettings, ReconstructionResult, RigSettings,
+                          TargetSettings, default_scene, reconstruct)
+from .runtime import configure_runtime
+from .schedule import Schedule, rule_image_size
+from .shapes import SHAPES, Shape
+from .targets import MESH_FORMATS, Target, TargetImages, load_mesh, make_target, normalise_mesh, shape_mesh
+
+__all__ = [
+    "reconstruct", "ReconstructionResult",
+    "RigSettings", "GridSettings", "TargetSettings", "NoiseSettings", "EvalSettings", "Schedule", "OptimSettings",
+    "default_scene", "configure_runtime",
+    "Target", "TargetImages", "make_target", "load_mesh", "normalise_mesh", "shape_mesh", "MESH_FORMATS",
+    "SHAPES", "Shape", "TriangleGrid", "RayHits",
+    "ViewLosses", "LevelReport", "optimise_level", "fill_cavities", "rule_image_size",
+    "image_loss", "silhouette_loss", "eikonal_loss", "laplacian_loss",
+    "surface_distances", "SurfaceDistances",
+]

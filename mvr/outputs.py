@@ -1,0 +1,99 @@
+"""Atomic writes of the output folder: every file goes to a temporary name beside it, then
+``os.replace`` puts it in place, so a run killed mid-write never leaves a truncated file."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Callable, IO, Sequence
+
+import numpy as np
+import torch
+
+
+def _file_mode() -> int:
+    """The mode a plainly created file gets (0o666 less the umask); mkstemp would give 0o600."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+def atomic_write(path: str | Path, write: Callable[[IO[bytes]], None]) -> Path:
+    """Calls ``write(f)`` on a temporary binary file in ``path``'s folder, then renames it to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, _file_mode())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Writes UTF-8 text atomically."""
+    return atomic_write(path, lambda f: f.write(text.encode("utf-8")))
+
+
+def write_json(path: str | Path, data) -> Path:
+    """Writes JSON atomically (non-finite floats become null, so the file is standard JSON)."""
+    return write_text(path, json.dumps(_finite(data), indent=2, sort_keys=False) + "\n")
+
+
+def _finite(x):
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    return x
+
+
+def write_csv(path: str | Path, rows: Sequence[dict], columns: Sequence[str]) -> Path:
+    """Writes rows (dicts) as CSV with the given columns, atomically."""
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(columns), extrasaction="ignore")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow(row)
+    return write_text(path, buf.getvalue())
+
+
+def write_torch(path: str | Path, obj) -> Path:
+    """``torch.save`` atomically."""
+    return atomic_write(path, lambda f: torch.save(obj, f))
+
+
+def write_npz(path: str | Path, **arrays) -> Path:
+    """``numpy.savez_compressed`` atomically."""
+    return atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+
+
+def write_mesh(path: str | Path, mesh) -> Path:
+    """Exports a trimesh.Trimesh atomically; the format comes from the suffix (.ply, .obj, ...)."""
+    path = Path(path)
+    kind = path.suffix.lstrip(".").lower()
+    return atomic_write(path, lambda f: f.write(_as_bytes(mesh.export(file_type=kind))))
+
+
+def _as_bytes(data) -> bytes:
+    return data.encode("utf-8") if isinstance(data, str) else bytes(data)
+
+
+def write_png(path: str | Path, image: np.ndarray) -> Path:
+    """Writes an (H, W) or (H, W, 3) float image in [0, 1] as an 8-bit PNG, atomically."""
+    from PIL import Image
+
+    arr = (np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0) * 255).round().astype(np.uint8)
+    return atomic_write(path, lambda f: Image.fromarray(arr).save(f, format="PNG"))

@@ -1,0 +1,348 @@
+"""Multi-view reconstruction end to end: target -> views -> coarse-to-fine fit -> mesh -> error.
+
+``reconstruct()`` owns the output folder's layout:
+
+    grid.npz            the final SDF grid: values (N, N, N) float32, bbox_min, bbox_max
+    mesh.ply, mesh.obj  its zero level set (marching cubes), world coordinates
+    target.ply          the normalised target mesh the error is measured against
+    views.png           a few views: target, our render, |difference| (rows)
+    levels.json         per level: resolution, image size, passes, updates, losses, seconds, history
+    levels.csv          the same without the per-pass history
+    metrics.json        hausdorff_rel, chamfer_rel, seconds, ... and the normalisation used
+    settings.json       every setting of the run
+    checkpoints/level_XX.pt   the grid after each finished level (a rerun resumes after the last)
+
+Every file is written atomically (mvr.outputs).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Optional, Sequence, Union
+
+import numpy as np
+import torch
+
+from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
+from svr.geometry import sdf_to_mesh
+
+from . import outputs
+from .metrics import NORMALISATION, surface_distances
+from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
+from .schedule import Schedule
+from .targets import Target, make_target
+
+log = logging.getLogger("mvr")
+
+LEVEL_COLUMNS = ("level", "resolution", "image_size", "passes", "updates", "seconds", "loss_start", "loss_end",
+                 "image_loss", "silhouette_loss", "eikonal", "laplacian", "stop_reason")
+
+
+@dataclass(frozen=True)
+class RigSettings:
+    """The 26-view cube rig (paper section 5): camera distance from the origin and full vertical
+    field of view (the authors' code: distance 5 from a [-2, 2]^3 box, 60 degrees)."""
+
+    distance: float = 3.0
+    fov_deg: float = 56.0
+
+    def __post_init__(self) -> None:
+        if not self.distance > 0:
+            raise ValueError(f"rig distance must be positive, got {self.distance!r}")
+        if not 0 < self.fov_deg < 180:
+            raise ValueError(f"rig fov_deg must lie in (0, 180), got {self.fov_deg!r}")
+
+    def cameras(self, image_size: int) -> Cameras:
+        """The 26 cameras at the given image size."""
+        return Cameras.cube_rig(self.distance, fov_deg=self.fov_deg, image_size=image_size)
+
+
+@dataclass(frozen=True)
+class GridSettings:
+    """The SDF grid's box ``[-half_size, half_size]^3`` and the initial sphere's radius (world)."""
+
+    half_size: float = 1.0
+    init_radius: float = 0.6
+
+    def __post_init__(self) -> None:
+        if not self.half_size > 0:
+            raise ValueError(f"grid half_size must be positive, got {self.half_size!r}")
+        if not 0 < self.init_radius < self.half_size:
+            raise ValueError(f"grid init_radius must lie in (0, half_size={self.half_size}), got {self.init_radius!r}")
+
+
+@dataclass(frozen=True)
+class TargetSettings:
+    """How the target is prepared (see mvr.targets): the normalised extent (longest bbox side,
+    world), the shading normals ("smooth"/"face"), and the meshing resolution of built-in shapes."""
+
+    extent: float = 1.6
+    normals: str = "smooth"
+    mesh_resolution: int = 192
+
+
+@dataclass(frozen=True)
+class NoiseSettings:
+    """The paper's robustness experiments. ``image_std``: standard deviation of Gaussian noise added
+    to every target pixel (and to the target coverage used by the silhouette loss); ``camera_std``:
+    standard deviation (world units, per axis) of a Gaussian offset of each camera position that the
+    optimiser believes in (the targets are made from the true cameras)."""
+
+    image_std: float = 0.0
+    camera_std: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not self.image_std >= 0 or not self.camera_std >= 0:
+            raise ValueError(f"noise image_std and camera_std must be >= 0, got {self.image_std!r}, "
+                             f"{self.camera_std!r}")
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """Evaluation: surface samples per mesh, and the views shown in views.png."""
+
+    samples: int = 50_000
+    views: Sequence[int] = (0, 2, 4, 6, 12, 18)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.samples, int) or self.samples < 1:
+            raise ValueError(f"eval samples must be a positive int, got {self.samples!r}")
+        views = tuple(int(v) for v in self.views)
+        if not views or min(views) < 0 or max(views) > 25:
+            raise ValueError(f"eval views must be indices in 0..25, got {list(self.views)!r}")
+        object.__setattr__(self, "views", views)
+
+
+@dataclass(frozen=True)
+class ReconstructionResult:
+    """What ``reconstruct`` produced (the files are in ``out_dir``)."""
+
+    out_dir: Path
+    grid: SDFGrid
+    mesh: object
+    metrics: dict
+    levels: list = field(default_factory=list)
+
+
+def default_scene() -> Scene:
+    """Grey material lit by a light at each camera (no falloff) plus ambient, black background."""
+    return Scene(effects=("silhouette", "shading"), lights=(), camera_light=0.8, camera_light_falloff=False,
+                 ambient=0.2, albedo=(1.0,), background=0.0)
+
+
+def _fingerprint(settings: dict) -> str:
+    return hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _checkpoint_path(out_dir: Path, level: int) -> Path:
+    return out_dir / "checkpoints" / f"level_{level:02d}.pt"
+
+
+def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int):
+    """(next level, grid values, bbox, reports) from the last finished level, or None."""
+    found = sorted((out_dir / "checkpoints").glob("level_*.pt")) if (out_dir / "checkpoints").is_dir() else []
+    if not found:
+        return None
+    ckpt = torch.load(found[-1], map_location="cpu", weights_only=False)
+    if ckpt.get("fingerprint") != fingerprint:
+        raise ValueError(
+            f"out_dir {str(out_dir)!r} holds checkpoints of a run with other settings ({found[-1].name}); "
+            f"use another out_dir, or resume=false to start this one afresh")
+    level = int(ckpt["level"])
+    if level >= n_levels:
+        raise ValueError(f"checkpoint {str(found[-1])!r} is for level {level}, beyond the schedule's {n_levels}")
+    return level + 1, ckpt["values"], ckpt["bbox_min"], ckpt["bbox_max"], [LevelReport(**r) for r in ckpt["reports"]]
+
+
+def perturbed_cameras(cameras: Cameras, offsets: torch.Tensor) -> Cameras:
+    """The same cameras with their eyes moved by ``offsets`` (V, 3), still looking at the origin."""
+    eye = cameras.eye.double() + offsets.double()
+    return Cameras.look_at(eye, at=(0.0, 0.0, 0.0), up=cameras.up.double(), fov_deg=cameras.fov_deg.double(),
+                           image_size=cameras.image_size, dtype=cameras.dtype)
+
+
+def _comparison_image(targets: torch.Tensor, renders: torch.Tensor) -> np.ndarray:
+    """Rows target / render / |difference| of (K, H, W, C) images, as one (3H, K W, 3) array."""
+    def row(x: torch.Tensor) -> np.ndarray:
+        x = x.detach().float()
+        if x.shape[-1] == 1:
+            x = x.expand(*x.shape[:-1], 3)
+        return np.concatenate([x[k].numpy() for k in range(x.shape[0])], axis=1)
+
+    diff = (targets - renders).abs()
+    return np.concatenate([row(targets), row(renders), row(diff)], axis=0)
+
+
+def reconstruct(
+    target: Union[str, Path, Target],
+    out_dir: Union[str, Path],
+    *,
+    rig: RigSettings = RigSettings(),
+    grid: GridSettings = GridSettings(),
+    target_settings: TargetSettings = TargetSettings(),
+    schedule: Schedule = Schedule(),
+    optim: OptimSettings = OptimSettings(),
+    noise: NoiseSettings = NoiseSettings(),
+    evaluation: EvalSettings = EvalSettings(),
+    scene: Optional[Scene] = None,
+    trace: TraceSettings = TraceSettings(),
+    backend: str = "auto",
+    seed: int = 0,
+    resume: bool = True,
+    progress: bool = True,
+) -> ReconstructionResult:
+    """Reconstructs a target's SDF from its 26 rendered views and measures the error.
+
+    Args:
+        target: a built-in shape name (mvr.shapes.SHAPES), a mesh file path, or a prepared Target.
+        out_dir: the output folder (see the module docstring); created if needed.
+        rig, grid, target_settings, schedule, optim, noise, evaluation: the settings (plain objects).
+        scene: lights, material and effects (None: ``default_scene()``); it must ask for "shading",
+            and for "silhouette" when ``optim.silhouette_weight > 0``.
+        trace: the renderer's march settings; backend: the renderer's march backend.
+        seed: seeds the noise and the view order.
+        resume: continue after the last level checkpointed in out_dir (with the same settings);
+            False starts afresh (old checkpoints are replaced).
+        progress: tqdm bars per level.
+    Returns:
+        ReconstructionResult (final grid, mesh, metrics dict, level reports).
+    """
+    t_run = time.perf_counter()
+    scene = default_scene() if scene is None else scene
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a renderer.Scene, got {type(scene).__name__}")
+    if not scene.wants("shading"):
+        raise ValueError("scene.effects must include 'shading' (the image loss compares shaded images)")
+    if optim.silhouette_weight > 0 and not scene.wants("silhouette"):
+        raise ValueError("scene.effects must include 'silhouette' when optim.silhouette_weight > 0")
+    if target_settings.extent >= 2 * grid.half_size:
+        raise ValueError(f"target extent {target_settings.extent} does not fit the grid box of side "
+                         f"{2 * grid.half_size}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    spec = target.source if isinstance(target, Target) else str(target)
+    settings = {
+        "target": spec, "rig": asdict(rig), "grid": asdict(grid), "target_settings": asdict(target_settings),
+        "schedule": asdict(schedule), "optim": asdict(optim), "noise": asdict(noise),
+        "evaluation": asdict(evaluation), "scene": repr(scene), "trace": asdict(trace), "seed": seed,
+    }
+    fingerprint = _fingerprint(settings)
+    resolutions = schedule.grid_resolutions()
+    lo = torch.full((3,), -grid.half_size)
+    hi = torch.full((3,), grid.half_size)
+
+    state = _load_resume_point(out, fingerprint, len(resolutions)) if resume else None
+    if not resume:
+        for old in (out / "checkpoints").glob("level_*.pt") if (out / "checkpoints").is_dir() else []:
+            old.unlink()
+    outputs.write_json(out / "settings.json", {**settings, "fingerprint": fingerprint})
+
+    t0 = time.perf_counter()
+    tgt = target if isinstance(target, Target) else make_target(
+        spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution)
+    seconds_target = time.perf_counter() - t0
+    log.info("target %s: %d faces, bbox diagonal %.4f", tgt.source, len(tgt.mesh.faces), tgt.diagonal)
+
+    gen = torch.Generator().manual_seed(int(seed))
+    cam_offsets = torch.randn(26, 3, generator=gen, dtype=torch.float64) * noise.camera_std
+
+    if state is None:
+        start_level, reports = 0, []
+        current = SDFGrid.from_function(lambda p: p.norm(dim=-1) - grid.init_radius, resolutions[0], lo, hi)
+    else:
+        start_level, values, lo_c, hi_c, reports = state
+        current = SDFGrid(values, lo_c, hi_c)
+        log.info("resuming after level %d (%d^3) from %s", start_level - 1, current.resolution[0], out)
+
+    seconds_images = 0.0
+    cams_true = rig.cameras(16)
+    for level in range(start_level, len(resolutions)):
+        res = resolutions[level]
+        if current.resolution[0] != res:
+            current = current.resample(res)
+        size = schedule.image_size_for(cams_true, lo, hi, res)
+        cams_true = rig.cameras(size)
+        t0 = time.perf_counter()
+        views = tgt.render(cams_true, scene)
+        seconds_images += time.perf_counter() - t0
+        images, masks = views.images, views.masks.float()
+        if noise.image_std > 0:
+            g = torch.Generator().manual_seed(int(seed) * 7919 + level)
+            images = images + noise.image_std * torch.randn(images.shape, generator=g)
+            masks = masks + noise.image_std * torch.randn(masks.shape, generator=g)
+        cams_opt = perturbed_cameras(cams_true, cam_offsets) if noise.camera_std > 0 else cams_true
+        losses = ViewLosses(cams_opt, images, masks, scene, trace, backend, optim)
+        desc = f"level {level + 1}/{len(resolutions)} {res}^3 {size}px"
+        current, report = optimise_level(current, losses, optim, level, seed, progress, desc)
+        reports.append(report)
+        log.info("%s: %d passes, %d updates, loss %.3e -> %.3e, %.1fs (%s)", desc, report.passes, report.updates,
+                 report.loss_start, report.loss_end, report.seconds, report.stop_reason)
+        outputs.write_torch(_checkpoint_path(out, level), {
+            "fingerprint": fingerprint, "level": level, "values": current.values.detach().clone(),
+            "bbox_min": current.bbox_min, "bbox_max": current.bbox_max,
+            "reports": [asdict(r) for r in reports]})
+        _write_levels(out, reports)
+
+    # --- outputs
+    t_eval = time.perf_counter()
+    values = fill_cavities(current.values[0]) if optim.fill_cavities else current.values[0].detach()
+    final = SDFGrid(values.unsqueeze(0), current.bbox_min, current.bbox_max)
+    mesh = sdf_to_mesh(values, final.bbox_min.numpy(), final.bbox_max.numpy())
+    outputs.write_npz(out / "grid.npz", values=values.numpy().astype(np.float32),
+                      bbox_min=final.bbox_min.numpy(), bbox_max=final.bbox_max.numpy())
+    outputs.write_mesh(out / "target.ply", tgt.mesh)
+    if len(mesh.faces):
+        outputs.write_mesh(out / "mesh.ply", mesh)
+        outputs.write_mesh(out / "mesh.obj", mesh)
+    _write_levels(out, reports)
+
+    size = schedule.image_size_for(cams_true, lo, hi, final.resolution[0])
+    shown = list(evaluation.views)
+    cams_show = rig.cameras(size)[shown]
+    with torch.no_grad():
+        rendered = render(final, cams_show, scene, trace, backend)
+    target_show = tgt.render(cams_show, scene).images
+    outputs.write_png(out / "views.png", _comparison_image(target_show, rendered.image))
+
+    metrics: dict = {"target": tgt.name, "source": tgt.source}
+    if len(mesh.faces):
+        dist = surface_distances(mesh, tgt.mesh, evaluation.samples, seed)
+        metrics.update(dist.to_dict())
+    else:
+        metrics.update({"hausdorff_rel": None, "chamfer_rel": None, "hausdorff": None, "chamfer": None,
+                        "normalisation": NORMALISATION, "error": "the reconstruction has no surface"})
+    seconds_eval = time.perf_counter() - t_eval
+    seconds_levels = float(sum(r.seconds for r in reports))
+    metrics.update({
+        "seconds": seconds_target + seconds_images + seconds_levels + seconds_eval,
+        "seconds_target": seconds_target, "seconds_target_images": seconds_images,
+        "seconds_optimisation": seconds_levels, "seconds_evaluation": seconds_eval,
+        "seconds_this_run": time.perf_counter() - t_run,
+        "resumed_from_level": start_level if state is not None else None,
+        "levels": len(reports), "resolutions": [r.resolution for r in reports],
+        "image_sizes": [r.image_size for r in reports], "updates": int(sum(r.updates for r in reports)),
+        "final_resolution": final.resolution[0],
+        "voxel_size": float(final.voxel_size.max()),
+        "voxel_size_rel": float(final.voxel_size.max()) / tgt.diagonal,
+        "mesh_faces": int(len(mesh.faces)),
+        "mesh_watertight": bool(mesh.is_watertight) if len(mesh.faces) else False,
+        "mesh_components": int(len(mesh.split(only_watertight=False))) if len(mesh.faces) else 0,
+        "mesh_genus": (2 - int(mesh.euler_number)) / 2 if len(mesh.faces) else None,
+        "target_genus": (2 - int(tgt.mesh.euler_number)) / 2,
+        "backend": rendered.trace.backend,
+        "threads": torch.get_num_threads(),
+    })
+    outputs.write_json(out / "metrics.json", metrics)
+    log.info("hausdorff_rel %s chamfer_rel %s in %.1fs -> %s", metrics.get("hausdorff_rel"),
+             metrics.get("chamfer_rel"), metrics["seconds"], out)
+    return ReconstructionResult(out_dir=out, grid=final, mesh=mesh, metrics=metrics, levels=reports)
+
+
+def _write_levels(out: Path, reports: list[LevelReport]) -> None:
+    rows = [asdict(r) for r in reports]
+    outputs.write_json(out / "levels.json", rows)
+    outputs.write_csv(out / "levels.csv", rows, LEVEL_COLUMNS)

@@ -1,0 +1,208 @@
+"""Reconstruction targets: a watertight mesh, normalised into the grid's box, and its images.
+
+A target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a built-in shape of
+``mvr.shapes`` (meshed finely by marching cubes). Either way it is centred on the origin and scaled
+so that the longest side of its bounding box is ``extent`` (world units).
+
+The target images come from the mesh itself: rays through the pixel centres of our cameras are cast
+against its triangles (``mvr.raycast``) and the hits are shaded by ``renderer.shading.shade_lambert``
+with the same scene (lights, ambient, albedo, background) the optimiser renders with. The optimiser
+never sees an image made by its own renderer.
+
+Normals for the shading: ``"smooth"`` (default) interpolates the mesh's vertex normals with the
+barycentric weights of the hit, the right choice for meshes that approximate smooth surfaces (our
+renderer's normals are themselves smooth: interpolated finite differences); ``"face"`` uses each
+triangle's own normal, right for meshes with sharp, flat facets.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+import trimesh
+
+from renderer import Cameras, Scene
+from renderer.shading import shade_lambert
+from svr.geometry import sdf_to_mesh
+
+from .raycast import TriangleGrid
+from .shapes import SHAPES
+
+MESH_FORMATS = (".obj", ".ply", ".off", ".stl", ".glb")
+NORMAL_MODES = ("smooth", "face")
+
+
+@dataclass(frozen=True)
+class TargetImages:
+    """Target views rendered from the mesh.
+
+    Attributes:
+        images: (V, H, W, C) float32 shaded images (the scene's background where rays miss).
+        masks: (V, H, W) bool, rays that hit the mesh.
+    """
+
+    images: torch.Tensor
+    masks: torch.Tensor
+
+
+class Target:
+    """A watertight, outward-facing mesh normalised into the reconstruction's box.
+
+    Attributes:
+        name: the built-in shape's name or the file's stem.
+        source: "builtin:<name>" or the file's path.
+        mesh: trimesh.Trimesh in world coordinates (centred, longest bbox side ``extent``).
+        scale: the factor applied to the source's coordinates (after centring).
+        normals: "smooth" or "face", how hits are shaded.
+    """
+
+    def __init__(self, name: str, source: str, mesh: trimesh.Trimesh, scale: float, normals: str = "smooth"):
+        if normals not in NORMAL_MODES:
+            raise ValueError(f"normals must be one of {NORMAL_MODES}, got {normals!r}")
+        self.name = name
+        self.source = source
+        self.mesh = mesh
+        self.scale = float(scale)
+        self.normals = normals
+        self._caster: Optional[TriangleGrid] = None
+
+    @property
+    def diagonal(self) -> float:
+        """Length of the diagonal of the mesh's axis-aligned bounding box (world units)."""
+        lo, hi = self.mesh.bounds
+        return float(np.linalg.norm(hi - lo))
+
+    def render(self, cameras: Cameras, scene: Scene) -> TargetImages:
+        """Ray-casts the mesh from ``cameras`` and shades the hits with ``scene``.
+
+        Returns:
+            TargetImages with (V, H, W, C) images, C = ``scene.channels``, and (V, H, W) masks.
+        """
+        if self._caster is None:
+            self._caster = TriangleGrid(self.mesh.vertices, self.mesh.faces)
+        cams = cameras.to(dtype=torch.float64, device="cpu")
+        origins, directions = cams.rays()
+        v, h, w, _ = directions.shape
+        o = origins.reshape(-1, 3).numpy()
+        d = directions.reshape(-1, 3).numpy()
+        hits = self._caster.cast(o, d)
+        idx = np.nonzero(hits.hit)[0]
+        faces = hits.face[idx]
+        if self.normals == "smooth":
+            vn = np.asarray(self.mesh.vertex_normals)[self.mesh.faces[faces]]  # (K, 3 vertices, 3)
+            n = (hits.barycentric[idx, :, None] * vn).sum(axis=1)
+        else:
+            n = np.asarray(self.mesh.face_normals)[faces]
+        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        points = o[idx] + hits.t[idx, None] * d[idx]
+        eyes = cams.eye.numpy()[idx // (h * w)]
+        rgb = shade_lambert(torch.from_numpy(n), torch.from_numpy(points), torch.from_numpy(eyes), scene)
+        image = torch.empty(v * h * w, scene.channels, dtype=torch.float64)
+        image[:] = torch.as_tensor(scene.background, dtype=torch.float64)
+        image[torch.from_numpy(idx)] = rgb
+        mask = torch.from_numpy(hits.hit.copy())
+        return TargetImages(images=image.reshape(v, h, w, -1).float(), masks=mask.reshape(v, h, w))
+
+
+def load_mesh(path: str | Path) -> trimesh.Trimesh:
+    """Reads a closed triangle mesh from a file and orients it outwards.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: unsupported format, unreadable, empty, or not watertight (each names the file).
+    """
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in MESH_FORMATS:
+        raise ValueError(f"target mesh file {str(p)!r} has an unsupported format {suffix or '(none)'!r}; "
+                         f"expected one of {', '.join(MESH_FORMATS)}")
+    if not p.is_file():
+        raise FileNotFoundError(f"target mesh file not found: {str(p)!r}")
+    try:
+        mesh = trimesh.load(str(p), force="mesh", process=True)
+    except Exception as exc:  # trimesh raises many types for malformed files
+        raise ValueError(f"could not read target mesh file {str(p)!r}: {exc}") from exc
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise ValueError(f"target mesh file {str(p)!r} holds no triangles")
+    if not np.isfinite(mesh.vertices).all():
+        raise ValueError(f"target mesh file {str(p)!r} has non-finite vertex coordinates")
+    if not mesh.is_watertight:
+        raise ValueError(
+            f"target mesh file {str(p)!r} is not watertight ({len(mesh.faces)} faces, open or non-manifold "
+            f"edges): multi-view reconstruction and its error need a closed surface; repair the mesh "
+            f"first (e.g. trimesh.repair.fill_holes)")
+    if mesh.volume < 0:
+        mesh.invert()
+    return mesh
+
+
+def shape_mesh(name: str, resolution: int = 192) -> trimesh.Trimesh:
+    """A fine mesh of a built-in shape (its own frame): marching cubes at ``resolution`` samples
+    along the longest side of the shape's bounds, vertices then projected onto the zero set by two
+    Newton steps of the implicit function."""
+    if name not in SHAPES:
+        raise ValueError(f"unknown shape {name!r}; built-in shapes: {', '.join(SHAPES)}")
+    if not isinstance(resolution, int) or resolution < 16:
+        raise ValueError(f"resolution must be an int >= 16, got {resolution!r}")
+    shape = SHAPES[name]
+    lo = np.array(shape.bounds_min, dtype=np.float64)
+    hi = np.array(shape.bounds_max, dtype=np.float64)
+    step = float((hi - lo).max()) / (resolution - 1)
+    counts = np.maximum(np.ceil((hi - lo) / step).astype(int) + 1, 2)
+    hi = lo + (counts - 1) * step
+    axes = [torch.linspace(float(lo[a]), float(hi[a]), int(counts[a]), dtype=torch.float64) for a in range(3)]
+    values = shape.fn(torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1))
+    mesh = sdf_to_mesh(values, lo, hi)
+    verts = torch.from_numpy(np.asarray(mesh.vertices, dtype=np.float64))
+    for _ in range(2):
+        p = verts.clone().requires_grad_(True)
+        f = shape.fn(p)
+        (g,) = torch.autograd.grad(f.sum(), p)
+        g2 = (g * g).sum(-1, keepdim=True)
+        step_v = torch.where(g2 > 1e-12, f.detach()[:, None] * g / g2.clamp(min=1e-12), torch.zeros_like(g))
+        # Never move a vertex by more than one marching-cubes cell (kinks of the function).
+        verts = verts - step_v.clamp(-step, step)
+    return trimesh.Trimesh(vertices=verts.numpy(), faces=np.asarray(mesh.faces), process=False)
+
+
+def normalise_mesh(mesh: trimesh.Trimesh, extent: float) -> tuple[trimesh.Trimesh, float]:
+    """A copy of ``mesh`` centred on the origin (bounding-box centre) with its longest bbox side
+    equal to ``extent``; also returns the scale factor applied."""
+    if not extent > 0:
+        raise ValueError(f"extent must be positive, got {extent!r}")
+    lo, hi = mesh.bounds
+    side = float((hi - lo).max())
+    if not side > 0:
+        raise ValueError("the target mesh has zero extent (all vertices coincide)")
+    scale = extent / side
+    out = mesh.copy()
+    out.apply_translation(-(lo + hi) / 2.0)
+    out.apply_scale(scale)
+    return out, scale
+
+
+def make_target(spec: str, extent: float = 1.6, normals: str = "smooth", mesh_resolution: int = 192) -> Target:
+    """The target named by ``spec``: a built-in shape name (see ``mvr.shapes.SHAPES``) or a mesh file.
+
+    Args:
+        spec: shape name or path to a .obj/.ply/.off/.stl/.glb file.
+        extent: longest side of the normalised target's bounding box (world units; the grid's box
+            must hold it).
+        normals: "smooth" or "face" (see the module docstring).
+        mesh_resolution: marching-cubes samples along the longest side for built-in shapes.
+    """
+    if not isinstance(spec, (str, Path)) or not str(spec):
+        raise TypeError(f"target must be a shape name or a mesh file path, got {spec!r}")
+    spec = str(spec)
+    if spec in SHAPES:
+        raw = shape_mesh(spec, mesh_resolution)
+        mesh, scale = normalise_mesh(raw, extent)
+        return Target(spec, f"builtin:{spec}", mesh, scale, normals)
+    if Path(spec).suffix == "" and not Path(spec).exists():
+        raise ValueError(f"target {spec!r} is neither a built-in shape ({', '.join(SHAPES)}) nor a mesh "
+                         f"file ({', '.join(MESH_FORMATS)})")
+    mesh, scale = normalise_mesh(load_mesh(spec), extent)
+    return Target(Path(spec).stem, str(spec), mesh, scale, normals)

@@ -1,0 +1,96 @@
+"""The coarse-to-fine schedule, the image resolution rule, the energy's terms, cavity filling."""
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from mvr import (OptimSettings, Schedule, eikonal_loss, fill_cavities, image_loss, laplacian_loss,
+                 rule_image_size, silhouette_loss)
+from renderer import Cameras, SDFGrid
+
+
+def test_resolutions():
+    assert Schedule().grid_resolutions() == [8, 16, 32, 64]
+    assert Schedule(levels=1).grid_resolutions() == [64]
+    assert Schedule(start=16, end=64, levels=3).grid_resolutions() == [16, 32, 64]
+    eight = Schedule(levels=8).grid_resolutions()
+    assert len(eight) == 8 and eight[0] == 8 and eight[-1] == 64
+    assert all(b > a for a, b in zip(eight, eight[1:]))
+    assert Schedule(resolutions=[8, 20, 40]).grid_resolutions() == [8, 20, 40]
+
+
+@pytest.mark.parametrize("kwargs, name", [
+    ({"start": 2}, "start"), ({"end": 4, "start": 8}, "start"), ({"levels": 0}, "levels"),
+    ({"start": 8, "end": 10, "levels": 5}, "levels"), ({"resolutions": [16, 8]}, "resolutions"),
+    ({"image_size": 2}, "image_size"), ({"voxel_footprint_px": 0}, "voxel_footprint_px"),
+])
+def test_schedule_bad_input(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        Schedule(**kwargs)
+
+
+def test_image_rule():
+    """One pixel spans a voxel at the farthest box corner (a one-voxel sphere covers 2x2 pixels)."""
+    cams = Cameras.cube_rig(3.0, fov_deg=56, image_size=8)
+    lo, hi = torch.full((3,), -1.0), torch.full((3,), 1.0)
+    size = rule_image_size(cams, lo, hi, 64)
+    far = 3.0 + math.sqrt(3.0)  # a corner view's farthest box corner
+    h = 2.0 / 63
+    assert size == math.ceil(2 * math.tan(math.radians(28)) * far / h)
+    pixel_at_far = far * float(Cameras.cube_rig(3.0, fov_deg=56, image_size=size).pixel_angle.max())
+    assert h * 0.98 <= pixel_at_far <= h
+    sizes = [Schedule().image_size_for(cams, lo, hi, r) for r in (8, 16, 32, 64)]
+    assert sizes == sorted(sizes) and sizes[0] >= 16
+    assert Schedule(image_size=40).image_size_for(cams, lo, hi, 64) == 40
+
+
+def test_losses():
+    a = torch.zeros(2, 4, 4, 1)
+    b = torch.ones(2, 4, 4, 1)
+    b[1] = 0.5
+    assert torch.allclose(image_loss(a, b), torch.tensor([1.0, 0.25]))
+    assert torch.allclose(silhouette_loss(a[..., 0], b[..., 0]), torch.tensor([1.0, 0.25]))
+    with pytest.raises(ValueError, match="rendered"):
+        image_loss(a, b[:1])
+    with pytest.raises(ValueError, match="silhouette"):
+        silhouette_loss(a, b)
+
+
+def test_eikonal_and_laplacian():
+    plane = SDFGrid.from_function(lambda p: p[..., 0] + 0.5 * p[..., 1], 16)
+    # |grad| = sqrt(1.25) everywhere: (1 - 1.25)^2.
+    assert float(eikonal_loss(plane)) == pytest.approx(0.0625, rel=1e-4)
+    assert float(laplacian_loss(plane)) == pytest.approx(0.0, abs=1e-8)
+    unit = SDFGrid.from_function(lambda p: p[..., 2] - 0.1, 16)
+    assert float(eikonal_loss(unit)) == pytest.approx(0.0, abs=1e-8)
+    sphere = SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 32)
+    assert float(eikonal_loss(sphere)) < 0.01  # only the kink at the centre deviates
+    bowl = SDFGrid.from_function(lambda p: (p * p).sum(-1), 16)  # Laplacian 6, in voxel units 6 h
+    h = 2.0 / 15
+    assert float(laplacian_loss(bowl)) == pytest.approx((6 * h) ** 2, rel=1e-4)
+
+
+def test_fill_cavities():
+    grid = SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.7, 24)
+    values = grid.values[0].clone()
+    bubble = (grid.points().norm(dim=-1) < 0.2)
+    values[bubble] = 0.1  # a positive pocket inside the solid
+    filled = fill_cavities(values)
+    assert (filled[bubble] < 0).all()
+    outside = values > 0
+    assert torch.equal(filled[outside & ~bubble], values[outside & ~bubble])
+    assert torch.equal(fill_cavities(grid.values[0]), grid.values[0])
+
+
+def test_optim_settings_bad_input():
+    with pytest.raises(ValueError, match="lr"):
+        OptimSettings(lr=0)
+    with pytest.raises(ValueError, match="both be 0"):
+        OptimSettings(image_weight=0, silhouette_weight=0)
+    with pytest.raises(ValueError, match="hard_view_updates"):
+        OptimSettings(hard_view_updates=0)
+    s = OptimSettings(max_passes=[3, 4], max_seconds=[None, 5.0])
+    assert [s.for_level("max_passes", k) for k in range(4)] == [3, 4, 4, 4]
+    assert s.for_level("max_seconds", 0) is None
