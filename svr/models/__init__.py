@@ -1,0 +1,7 @@
+"""The single-view networks (plain nn.Modules) and, in ``svr.models.module``, their LightningModule."""
+from .decoder import SDFDecoder, sphere_template
+from .encoder import ImageEncoder
+from .network import SVRNet, SVRPrediction
+from .refiner import SDFRefiner
+
+__all__ = ["ImageEncoder", "SDFDecoder", "SDFRefiner", "SVRNet", "SVRPrediction", "sphere_template"]

@@ -1,0 +1,357 @@
+"""The single-view training losses (paper section 6), as pure functions.
+
+``L = L_img + M * (lambda_1 L_eikonal + lambda_2 L_laplacian)`` with ``M`` the narrow band
+``|SDF| <= mu * voxel`` (paper: lambda_1 = lambda_2 = 0.02, mu = 1.6).
+
+* ``image_loss`` renders the predicted SDF grids from the sampled dataset views (renderer.render,
+  the NMR cameras) and compares them with the dataset images: the silhouette against the alpha
+  channel always, the shaded colour against RGB only when the scene asks for shading (datasets
+  whose shading model is known). Which passes run follows the scene, so silhouette-only data never
+  pays for shading.
+* ``eikonal_loss`` and ``laplacian_loss`` are finite differences on the grid, averaged over the
+  narrow band's vertices.
+
+Grids are (B, N, N, N) in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``),
+world units, over a cube whose sample spacing is ``voxel_size``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import torch
+from torch.nn import functional as F
+
+import renderer
+
+SILHOUETTE_KINDS = ("mse", "iou")
+
+
+def _check_grid(sdf: torch.Tensor, name: str = "sdf") -> None:
+    if not isinstance(sdf, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(sdf).__name__}")
+    if sdf.ndim != 4 or min(sdf.shape[1:]) < 3:
+        raise ValueError(f"{name} must have shape (B, N, N, N) with N >= 3, got {tuple(sdf.shape)}")
+    if not sdf.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got {sdf.dtype}")
+
+
+def _check_positive(value: float, name: str) -> float:
+    v = float(value)
+    if not v > 0 or v == float("inf"):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return v
+
+
+# ------------------------------------------------------------------------------------------------
+# Narrow-band regularisers
+
+
+def narrow_band(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.Tensor:
+    """The paper's mask ``M = |SDF| <= mu * voxel_size``.
+
+    Args:
+        sdf: (B, ...) SDF samples (world units). voxel_size: grid spacing (world units).
+        mu: band half-width in voxels (paper: 1.6).
+    Returns:
+        bool tensor of sdf's shape (no gradient).
+    """
+    _check_positive(voxel_size, "voxel_size")
+    _check_positive(mu, "mu")
+    return sdf.detach().abs() <= mu * voxel_size
+
+
+def _band_stencil(sdf: torch.Tensor, voxel_size: float,
+                  mu: float) -> tuple[Optional[dict[str, torch.Tensor]], float]:
+    """The 7-point stencils of the interior vertices in the band, gathered sparsely: the band holds
+    a few percent of a grid's vertices, so this costs far less than whole-grid differences.
+
+    Returns:
+        (dict with ``c`` (K,) the centre values and ``xp, xm, yp, ym, zp, zm`` (K,) the neighbours
+        (``xp`` at i + 1, ``xm`` at i - 1, ...), or None when the band holds no interior vertex;
+        the checked voxel size).
+    """
+    _check_grid(sdf)
+    h = _check_positive(voxel_size, "voxel_size")
+    b, nx, ny, nz = sdf.shape
+    idx = narrow_band(sdf[:, 1:-1, 1:-1, 1:-1], h, mu).nonzero()
+    if idx.shape[0] == 0:
+        return None, h
+    sx, sy = ny * nz, nz
+    base = ((idx[:, 0] * nx + idx[:, 1] + 1) * ny + idx[:, 2] + 1) * nz + idx[:, 3] + 1
+    flat = sdf.reshape(-1)
+    return {"c": flat[base], "xp": flat[base + sx], "xm": flat[base - sx], "yp": flat[base + sy],
+            "ym": flat[base - sy], "zp": flat[base + 1], "zm": flat[base - 1]}, h
+
+
+def _zero(sdf: torch.Tensor) -> torch.Tensor:
+    """A zero still attached to the graph (backward runs and gives zero gradients)."""
+    return sdf.reshape(-1)[:1].sum() * 0.0
+
+
+def eikonal_loss(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.Tensor:
+    """Narrow-band eikonal loss: the mean of ``(1 - |grad f|^2)^2`` over the interior vertices in the
+    band (the paper's L_reg), with central differences ``(f[i+1] - f[i-1]) / (2 voxel_size)``.
+
+    Args:
+        sdf: (B, N, N, N) SDF (world units). voxel_size: spacing (world units). mu: band width in voxels.
+    Returns:
+        scalar tensor; 0 when no interior vertex lies in the band.
+    """
+    st, h = _band_stencil(sdf, voxel_size, mu)
+    if st is None:
+        return _zero(sdf)
+    gx = (st["xp"] - st["xm"]) / (2 * h)
+    gy = (st["yp"] - st["ym"]) / (2 * h)
+    gz = (st["zp"] - st["zm"]) / (2 * h)
+    return ((1.0 - (gx * gx + gy * gy + gz * gz)) ** 2).mean()
+
+
+def laplacian_loss(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.Tensor:
+    """Narrow-band Laplacian loss (the paper's L_geo): the mean over the interior vertices in the
+    band of ``(voxel_size * lap f)^2``, with the 7-point Laplacian
+    ``lap f = sum_axes (f[i+1] - 2 f[i] + f[i-1]) / voxel_size^2``.
+
+    Scaling by the voxel size makes the term dimensionless (an SDF's Laplacian is its mean
+    curvature, 1/length): a sphere of radius r gives about ``(2 voxel_size / r)^2``, a one-voxel
+    bump a term of order one, so a weight means the same at any grid resolution.
+
+    Args:
+        sdf: (B, N, N, N) SDF (world units). voxel_size: spacing (world units). mu: band width in voxels.
+    Returns:
+        scalar tensor; 0 when no interior vertex lies in the band.
+    """
+    st, h = _band_stencil(sdf, voxel_size, mu)
+    if st is None:
+        return _zero(sdf)
+    second = st["xp"] + st["xm"] + st["yp"] + st["ym"] + st["zp"] + st["zm"] - 6.0 * st["c"]
+    return ((second / h) ** 2).mean()
+
+
+# ------------------------------------------------------------------------------------------------
+# Image losses
+
+
+def silhouette_loss(pred: torch.Tensor, target: torch.Tensor, kind: str = "mse") -> torch.Tensor:
+    """Silhouette loss between rendered coverage and the dataset's alpha.
+
+    Args:
+        pred, target: (..., H, W) in [0, 1].
+        kind: "mse" (the paper's L2, mean over pixels) or "iou" (``1 - soft IoU`` per image, averaged;
+            insensitive to how much of the image the object fills).
+    Returns:
+        scalar tensor.
+    """
+    if pred.shape != target.shape:
+        raise ValueError(f"pred {tuple(pred.shape)} and target {tuple(target.shape)} must have the same shape")
+    if kind == "mse":
+        return F.mse_loss(pred, target)
+    if kind == "iou":
+        p = pred.flatten(-2)
+        t = target.flatten(-2)
+        inter = (p * t).sum(-1)
+        union = (p + t - p * t).sum(-1)
+        return (1.0 - inter / union.clamp(min=1e-6)).mean()
+    raise ValueError(f"kind must be one of {SILHOUETTE_KINDS}, got {kind!r}")
+
+
+def shading_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """The paper's L2 image loss on colour: mean squared difference.
+
+    Args:
+        pred, target: (..., C, H, W) colours in [0, 1] (same background).
+    Returns:
+        scalar tensor.
+    """
+    if pred.shape != target.shape:
+        raise ValueError(f"pred {tuple(pred.shape)} and target {tuple(target.shape)} must have the same shape")
+    return F.mse_loss(pred, target)
+
+
+def resize_images(images: torch.Tensor, size: int) -> torch.Tensor:
+    """Area-averaged downsampling of dataset images (the alpha of an anti-aliased image stays the
+    pixel coverage).
+
+    Args:
+        images: (B, V, C, H, W) in [0, 1]. size: target side; H must be a multiple of it.
+    Returns:
+        (B, V, C, size, size).
+    """
+    if images.ndim != 5 or images.shape[-1] != images.shape[-2]:
+        raise ValueError(f"images must have shape (B, V, C, H, H), got {tuple(images.shape)}")
+    h = images.shape[-1]
+    if isinstance(size, bool) or not isinstance(size, int) or size <= 0 or h % size:
+        raise ValueError(f"size must be a positive divisor of the image side {h}, got {size!r}")
+    if size == h:
+        return images
+    b, v, c = images.shape[:3]
+    return F.avg_pool2d(images.reshape(b * v, c, h, h), h // size).reshape(b, v, c, size, size)
+
+
+@dataclass(frozen=True)
+class ImageLoss:
+    """Image loss terms and the renders they came from.
+
+    Attributes:
+        silhouette: scalar silhouette loss.
+        shading: scalar colour loss, or None when the scene renders no shading.
+        silhouettes: (B, V, H, W) rendered soft silhouettes.
+        colours: (B, V, C, H, W) rendered colours, or None.
+        target: (B, V, 4, H, W) the dataset images at the render size.
+    """
+
+    silhouette: torch.Tensor
+    shading: Optional[torch.Tensor]
+    silhouettes: torch.Tensor
+    colours: Optional[torch.Tensor]
+    target: torch.Tensor
+
+
+def render_views(
+    sdf: torch.Tensor,
+    half_side: float,
+    view_ids: torch.Tensor,
+    scene: renderer.Scene,
+    image_size: int = 64,
+    trace_settings: renderer.TraceSettings = renderer.TraceSettings(),
+    backend: str = "auto",
+) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
+    """Renders each of B SDF grids from its V NMR views.
+
+    Args:
+        sdf: (B, N, N, N) SDF over ``[-half_side, half_side]^3`` (world units).
+        view_ids: (B, V) NMR view indices (``renderer.Cameras.nmr``).
+        scene: renderer.Scene (its effects decide which passes run).
+        image_size: render side H = W.
+    Returns:
+        silhouettes (B, V, H, W) and colours (B, V, C, H, W) (None unless the scene shades).
+    """
+    _check_grid(sdf)
+    if view_ids.ndim != 2 or view_ids.shape[0] != sdf.shape[0]:
+        raise ValueError(f"view_ids must have shape (B={sdf.shape[0]}, V), got {tuple(view_ids.shape)}")
+    if not scene.wants("silhouette"):
+        raise ValueError(f"scene.effects must include 'silhouette', got {scene.effects}")
+    b, v = view_ids.shape
+    grid = renderer.SDFGrid(sdf, -float(half_side), float(half_side))
+    cams = renderer.Cameras.nmr(view_ids.reshape(-1).cpu(), image_size=image_size, dtype=sdf.dtype,
+                                device=sdf.device)
+    out = renderer.render(grid, cams, scene, trace_settings, backend)
+    sil = out.silhouette.reshape(b, v, image_size, image_size)
+    colours = None
+    if out.image is not None:
+        colours = out.image.reshape(b, v, image_size, image_size, -1).permute(0, 1, 4, 2, 3)
+    return sil, colours
+
+
+def image_loss(
+    sdf: torch.Tensor,
+    half_side: float,
+    images: torch.Tensor,
+    view_ids: torch.Tensor,
+    scene: renderer.Scene,
+    render_size: int = 64,
+    silhouette_kind: str = "mse",
+    trace_settings: renderer.TraceSettings = renderer.TraceSettings(),
+    backend: str = "auto",
+) -> ImageLoss:
+    """Renders the predicted grids from the sampled views and compares them with the images.
+
+    Args:
+        sdf: (B, N, N, N) predicted SDF over ``[-half_side, half_side]^3``.
+        images: (B, V, 4, H, W) dataset RGBA in [0, 1] (RGB on the scene's background).
+        view_ids: (B, V) the NMR view of each image.
+        scene: what to render; with "shading" in its effects the RGB is compared too.
+        render_size: render side; the images are area-downsampled to it (a divisor of H).
+        silhouette_kind: see ``silhouette_loss``.
+    Returns:
+        ImageLoss.
+    """
+    if images.ndim != 5 or images.shape[2] != 4:
+        raise ValueError(f"images must have shape (B, V, 4, H, W), got {tuple(images.shape)}")
+    if images.shape[:2] != view_ids.shape:
+        raise ValueError(f"images {tuple(images.shape[:2])} and view_ids {tuple(view_ids.shape)} "
+                         f"must agree on (B, V)")
+    target = resize_images(images.to(sdf.dtype), render_size)
+    sil, colours = render_views(sdf, half_side, view_ids, scene, render_size, trace_settings, backend)
+    l_sil = silhouette_loss(sil, target[:, :, 3], silhouette_kind)
+    l_shade = None
+    if colours is not None:
+        if colours.shape[2] != 3:
+            raise ValueError(f"the scene renders {colours.shape[2]} colour channels; the images have 3")
+        l_shade = shading_loss(colours, target[:, :, :3])
+    return ImageLoss(silhouette=l_sil, shading=l_shade, silhouettes=sil, colours=colours, target=target)
+
+
+# ------------------------------------------------------------------------------------------------
+# The total
+
+
+@dataclass(frozen=True)
+class LossWeights:
+    """Weights of the single-view loss (built from configs/loss/*.yaml).
+
+    Attributes:
+        silhouette: weight of the silhouette term.
+        shading: weight of the colour term (used only where the dataset's shading model is known).
+        eikonal: lambda_1 (paper 0.02). laplacian: lambda_2 (paper 0.02).
+        band_mu: narrow band half-width in voxels (paper 1.6).
+        silhouette_kind: "mse" (paper: L2) or "iou".
+    """
+
+    silhouette: float = 1.0
+    shading: float = 1.0
+    eikonal: float = 0.02
+    laplacian: float = 0.02
+    band_mu: float = 1.6
+    silhouette_kind: str = "mse"
+
+    def __post_init__(self) -> None:
+        for name in ("silhouette", "shading", "eikonal", "laplacian"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v >= 0 and v != float("inf")):
+                raise ValueError(f"loss weight {name} must be a finite number >= 0, got {v!r}")
+        _check_positive(self.band_mu, "band_mu")
+        if self.silhouette_kind not in SILHOUETTE_KINDS:
+            raise ValueError(f"silhouette_kind must be one of {SILHOUETTE_KINDS}, got {self.silhouette_kind!r}")
+
+
+@dataclass(frozen=True)
+class LossTerms:
+    """The weighted total and its (unweighted) parts, all scalar tensors (shading None if unused)."""
+
+    total: torch.Tensor
+    silhouette: torch.Tensor
+    shading: Optional[torch.Tensor]
+    eikonal: torch.Tensor
+    laplacian: torch.Tensor
+
+    def as_dict(self) -> dict[str, torch.Tensor]:
+        d = {"total": self.total, "silhouette": self.silhouette, "eikonal": self.eikonal,
+             "laplacian": self.laplacian}
+        if self.shading is not None:
+            d["shading"] = self.shading
+        return d
+
+
+def total_loss(image: ImageLoss, sdf: torch.Tensor, voxel_size: float, weights: LossWeights) -> LossTerms:
+    """``w_s L_sil + w_c L_shade + w_e L_eikonal + w_l L_laplacian`` (the last two in the band).
+
+    Args:
+        image: the image terms of ``sdf`` (``image_loss``).
+        sdf: (B, N, N, N) the same predicted grids. voxel_size: their spacing.
+        weights: LossWeights.
+    Returns:
+        LossTerms.
+    """
+    eik = eikonal_loss(sdf, voxel_size, weights.band_mu)
+    lap = laplacian_loss(sdf, voxel_size, weights.band_mu)
+    total = weights.silhouette * image.silhouette + weights.eikonal * eik + weights.laplacian * lap
+    if image.shading is not None:
+        total = total + weights.shading * image.shading
+    return LossTerms(total=total, silhouette=image.silhouette, shading=image.shading, eikonal=eik, laplacian=lap)
+
+
+__all__ = [
+    "narrow_band", "eikonal_loss", "laplacian_loss", "silhouette_loss", "shading_loss", "resize_images",
+    "render_views", "image_loss", "ImageLoss", "LossWeights", "LossTerms", "total_loss", "SILHOUETTE_KINDS",
+]

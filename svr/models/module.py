@@ -1,0 +1,340 @@
+"""SVRLightningModule: the three-stage training of the single-view network (paper section 6).
+
+Stages:
+
+* ``coarse``: encoder + decoder, loss on the coarse SDF; the refiner is not run.
+* ``refine``: the refiner alone, loss on the refined SDF; encoder and decoder are frozen:
+  ``requires_grad`` False, batch norm in eval mode (kept so whatever calls ``.train()``), and run
+  without building a graph.
+* ``joint``: all three, loss on the refined SDF.
+
+Robustness: a non-finite prediction, loss or gradient never reaches the weights. The step is
+skipped (every gradient dropped before the optimiser sees it, which works the same under
+distributed training), a warning is issued and ``train/skipped_steps`` counts them (also kept in
+the checkpoint).
+"""
+from __future__ import annotations
+
+import warnings
+from typing import Any, Callable, Iterable, Optional, Sequence
+
+import pytorch_lightning as pl
+import torch
+
+import renderer
+
+from ..data.types import SVRBatch
+from ..losses import LossTerms, LossWeights, image_loss, total_loss
+from ..metrics import iou_direct, iou_table
+from .network import SVRNet
+
+STAGES = ("coarse", "refine", "joint")
+CHECKPOINT_KEY = "sdfdiff"
+
+OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
+SchedulerFactory = Callable[[torch.optim.Optimizer], Any]
+
+
+def check_stage(stage: str) -> str:
+    if stage not in STAGES:
+        raise ValueError(f"stage must be one of {STAGES}, got {stage!r}")
+    return stage
+
+
+def _default_optimizer(params: Iterable[torch.nn.Parameter]) -> torch.optim.Optimizer:
+    return torch.optim.Adam(params, lr=1e-4)
+
+
+class SVRLightningModule(pl.LightningModule):
+    """Trains an SVRNet by rendering its SDF predictions (renderer.render) against the dataset views.
+
+    Args:
+        net: the network.
+        stage: "coarse", "refine" or "joint" (see the module docstring).
+        loss_weights: LossWeights.
+        scene: the renderer.Scene of the image loss: silhouettes only, or also shading when the
+            dataset's shading model is known (``ShadingModel.scene()``).
+        render_size: side of the training renders (the images are area-downsampled to it).
+        trace_settings: the renderer's march settings.
+        backend: renderer backend ("auto" picks the fused kernel where available).
+        optimizer: a factory ``params -> torch.optim.Optimizer`` (hydra ``_partial_``); Adam(1e-4)
+            if None.
+        scheduler: a factory ``optimizer -> LR scheduler`` stepped every training step, or None.
+        categories: (id, name) pairs of the data module, for per-category validation IoU.
+        model_config: the plain-dict config the network was built from (hydra ``_target_`` form);
+            stored in every checkpoint so that evaluation and inference can rebuild the network.
+    """
+
+    def __init__(
+        self,
+        net: SVRNet,
+        stage: str = "coarse",
+        loss_weights: LossWeights = LossWeights(),
+        scene: renderer.Scene = renderer.Scene(effects=("silhouette",)),
+        render_size: int = 64,
+        trace_settings: renderer.TraceSettings = renderer.TraceSettings(),
+        backend: str = "auto",
+        optimizer: Optional[OptimizerFactory] = None,
+        scheduler: Optional[SchedulerFactory] = None,
+        categories: Optional[Sequence[tuple[str, str]]] = None,
+        model_config: Optional[dict] = None,
+    ) -> None:
+        super().__init__()
+        if not isinstance(net, SVRNet):
+            raise TypeError(f"net must be an SVRNet, got {type(net).__name__}")
+        if not isinstance(loss_weights, LossWeights):
+            raise TypeError(f"loss_weights must be a LossWeights, got {type(loss_weights).__name__}")
+        if not isinstance(scene, renderer.Scene):
+            raise TypeError(f"scene must be a renderer.Scene, got {type(scene).__name__}")
+        if not isinstance(trace_settings, renderer.TraceSettings):
+            raise TypeError(f"trace_settings must be a renderer.TraceSettings, got {type(trace_settings).__name__}")
+        if isinstance(render_size, bool) or not isinstance(render_size, int) or render_size <= 0:
+            raise ValueError(f"render_size must be a positive int, got {render_size!r}")
+        self.net = net
+        self.stage = check_stage(stage)
+        self.loss_weights = loss_weights
+        self.scene = scene
+        self.render_size = render_size
+        self.trace_settings = trace_settings
+        self.backend = backend
+        self.optimizer_factory = optimizer or _default_optimizer
+        self.scheduler_factory = scheduler
+        self.categories = [tuple(c) for c in categories] if categories is not None else None
+        self.model_config = model_config
+        self.skipped_steps = 0
+        self._skip_this_step = False
+        self.capture_visuals = False
+        self.visuals: Optional[dict[str, torch.Tensor]] = None
+        self._val_iou: list[torch.Tensor] = []
+        self._val_iou_coarse: list[torch.Tensor] = []
+        self._val_category: list[torch.Tensor] = []
+        self.apply_stage()
+
+    # ------------------------------------------------------------------ stages
+    @property
+    def frozen_modules(self) -> tuple[torch.nn.Module, ...]:
+        """The submodules this stage does not train."""
+        if self.stage == "coarse":
+            return (self.net.refiner,)
+        if self.stage == "refine":
+            return (self.net.encoder, self.net.decoder)
+        return ()
+
+    def apply_stage(self) -> None:
+        """Sets ``requires_grad`` and batch-norm modes for ``self.stage``."""
+        for p in self.net.parameters():
+            p.requires_grad_(True)
+        for m in self.frozen_modules:
+            for p in m.parameters():
+                p.requires_grad_(False)
+        self.train(self.training)
+
+    def train(self, mode: bool = True) -> "SVRLightningModule":
+        """As nn.Module.train, except that frozen submodules always stay in eval mode (their batch
+        norm statistics never move), whoever calls this (Lightning does around validation)."""
+        super().train(mode)
+        for m in self.frozen_modules:
+            m.eval()
+        return self
+
+    @property
+    def uses_refiner(self) -> bool:
+        return self.stage != "coarse"
+
+    def predict_sdf(self, images: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
+        """(B, 4, 64, 64) images -> coarse (B, N, N, N) and refined SDF (None in the coarse stage).
+
+        Frozen parts run without a graph (they need no gradient)."""
+        if self.stage == "refine":
+            with torch.no_grad():
+                coarse = self.net.decoder(self.net.encoder(images))
+        else:
+            coarse = self.net.decoder(self.net.encoder(images))
+        refined = self.net.refiner(coarse) if self.uses_refiner else None
+        return coarse, refined
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        """(B, 4, 64, 64) RGBA -> (B, N, N, N) the stage's output SDF (refined unless coarse stage)."""
+        coarse, refined = self.predict_sdf(images)
+        return refined if refined is not None else coarse
+
+    # ------------------------------------------------------------------ training
+    def compute_loss(self, batch: SVRBatch, sdf: torch.Tensor) -> LossTerms:
+        """The stage's loss of predicted grids (B, N, N, N) against the batch's V views."""
+        img = image_loss(sdf, self.net.half_side, batch.images, batch.view_ids, self.scene, self.render_size,
+                         self.loss_weights.silhouette_kind, self.trace_settings, self.backend)
+        if self.capture_visuals:
+            self.visuals = {
+                "input": batch.images[:, 0].detach().cpu(),
+                "target": img.target.detach().cpu(),
+                "silhouette": img.silhouettes.detach().cpu(),
+                **({"colour": img.colours.detach().cpu()} if img.colours is not None else {}),
+            }
+        return total_loss(img, sdf, self.net.voxel_size, self.loss_weights)
+
+    def _trainable(self) -> list[torch.nn.Parameter]:
+        return [p for p in self.parameters() if p.requires_grad]
+
+    def _skip(self, why: str) -> torch.Tensor:
+        """Marks this step as skipped and returns a zero loss attached to the trainable weights
+        (so backward runs the same on every process); the gradients are dropped before the step."""
+        self._skip_this_step = True
+        self.skipped_steps += 1
+        warnings.warn(f"step {self.global_step}: {why}; skipping the optimiser step "
+                      f"({self.skipped_steps} skipped so far)", RuntimeWarning)
+        return sum((p.sum() * 0.0 for p in self._trainable()), torch.zeros((), device=self.device))
+
+    def training_step(self, batch: SVRBatch, batch_idx: int) -> torch.Tensor:
+        self._skip_this_step = False
+        images = batch.images[:, 0]
+        coarse, refined = self.predict_sdf(images)
+        sdf = refined if refined is not None else coarse
+        if not bool(torch.isfinite(sdf.detach()).all()):
+            loss = self._skip("the predicted SDF is not finite")
+            terms = None
+        else:
+            terms = self.compute_loss(batch, sdf)
+            loss = terms.total
+            if not bool(torch.isfinite(loss.detach())):
+                loss = self._skip(f"the loss is not finite ({float(loss.detach())})")
+        bs = len(batch)
+        if terms is not None and not self._skip_this_step:
+            for name, value in terms.as_dict().items():
+                self.log(f"train/{name}", value.detach(), batch_size=bs, prog_bar=name == "total")
+        self.log("train/skipped_steps", float(self.skipped_steps), batch_size=bs)
+        return loss
+
+    def on_before_optimizer_step(self, optimizer: torch.optim.Optimizer) -> None:
+        """Drops every gradient of a skipped step, or of a step with a non-finite gradient."""
+        params = [p for group in optimizer.param_groups for p in group["params"] if p.grad is not None]
+        if not self._skip_this_step:
+            finite = all(bool(torch.isfinite(p.grad).all()) for p in params)
+            if not finite:
+                self.skipped_steps += 1
+                warnings.warn(f"step {self.global_step}: non-finite gradient; skipping the optimiser step "
+                              f"({self.skipped_steps} skipped so far)", RuntimeWarning)
+                self._skip_this_step = True
+        if self._skip_this_step:
+            for p in params:
+                p.grad = None
+        self._skip_this_step = False
+
+    def configure_optimizers(self):
+        params = self._trainable()
+        if not params:
+            raise ValueError(f"stage {self.stage!r} has no trainable parameters")
+        opt = self.optimizer_factory(params)
+        if self.scheduler_factory is None:
+            return opt
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": self.scheduler_factory(opt), "interval": "step"}}
+
+    # ------------------------------------------------------------------ validation
+    def on_validation_epoch_start(self) -> None:
+        self._val_iou, self._val_iou_coarse, self._val_category = [], [], []
+
+    def validation_step(self, batch: SVRBatch, batch_idx: int) -> None:
+        """Fast direct IoU (``svr.metrics.iou_direct``) of the stage's output and of the coarse SDF,
+        one prediction per batch element from its first view."""
+        coarse, refined = self.predict_sdf(batch.images[:, 0])
+        hs = self.net.half_side
+        iou_c = iou_direct(coarse, batch.voxels, -hs, hs).to(self.device)
+        iou = iou_direct(refined, batch.voxels, -hs, hs).to(self.device) if refined is not None else iou_c
+        self._val_iou.append(iou)
+        self._val_iou_coarse.append(iou_c)
+        self._val_category.append(batch.category.to(self.device))
+
+    def on_validation_epoch_end(self) -> None:
+        if not self._val_iou:
+            return
+        iou = torch.cat(self._val_iou)
+        iou_c = torch.cat(self._val_iou_coarse)
+        cat = torch.cat(self._val_category)
+        if self.trainer.world_size > 1:
+            iou, iou_c, cat = (self.all_gather(t).reshape(-1) for t in (iou, iou_c, cat))
+        mean, per_cat = _category_mean(iou, cat, self.categories)
+        self.log("val/iou", mean, prog_bar=True, sync_dist=False)
+        self.log("val/iou_coarse", _category_mean(iou_c, cat, self.categories)[0], sync_dist=False)
+        for name, value in per_cat.items():
+            self.log(f"val/iou_{name}", value, sync_dist=False)
+
+    # ------------------------------------------------------------------ checkpoints
+    def on_save_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        checkpoint[CHECKPOINT_KEY] = {
+            "stage": self.stage,
+            "skipped_steps": self.skipped_steps,
+            "model_config": self.model_config,
+            "half_side": self.net.half_side,
+            "grid_resolution": self.net.grid_resolution,
+            "categories": [list(c) for c in self.categories] if self.categories is not None else None,
+        }
+
+    def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
+        meta = checkpoint.get(CHECKPOINT_KEY, {})
+        self.skipped_steps = int(meta.get("skipped_steps", 0))
+
+
+def _category_mean(iou: torch.Tensor, cat: torch.Tensor,
+                   categories: Optional[Sequence[tuple[str, str]]]) -> tuple[float, dict[str, float]]:
+    """The benchmark's mean (per-category means, then their unweighted mean) and the per-category
+    means by name, over the categories present."""
+    cat = cat.long().cpu()
+    if categories is None:
+        n = int(cat.max()) + 1 if cat.numel() else 0
+        categories = [(str(c), str(c)) for c in range(n)]
+    table = iou_table(iou.cpu(), cat, categories)
+    return table.mean, {r.name: r.iou for r in table.rows if r.images > 0}
+
+
+def load_checkpoint(path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Loads one of our Lightning checkpoints (tensors and plain values only) and checks it is ours.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: unreadable, truncated or not an SDFDiff
+        single-view checkpoint (the message names the file).
+    """
+    from pathlib import Path
+
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {p}")
+    try:
+        ckpt = torch.load(p, map_location=map_location, weights_only=True)
+    except Exception as err:  # torch raises many types for corrupt files
+        raise ValueError(f"{p}: not a readable checkpoint ({type(err).__name__}: {err})") from None
+    if not isinstance(ckpt, dict) or CHECKPOINT_KEY not in ckpt or "state_dict" not in ckpt:
+        raise ValueError(f"{p}: not an SDFDiff single-view checkpoint (no '{CHECKPOINT_KEY}' entry)")
+    meta = ckpt[CHECKPOINT_KEY]
+    if meta.get("stage") not in STAGES:
+        raise ValueError(f"{p}: unknown training stage {meta.get('stage')!r} in the checkpoint")
+    return ckpt
+
+
+def load_network(path, map_location: str | torch.device = "cpu") -> tuple[SVRNet, dict[str, Any]]:
+    """Rebuilds the network of a checkpoint from the model config stored in it, with its weights.
+
+    Returns:
+        (SVRNet in eval mode, the checkpoint's metadata: stage, half_side, grid_resolution,
+        categories, model_config, skipped_steps).
+    """
+    from hydra.utils import instantiate
+
+    ckpt = load_checkpoint(path, map_location)
+    meta = ckpt[CHECKPOINT_KEY]
+    if not meta.get("model_config"):
+        raise ValueError(f"{path}: the checkpoint holds no model config to rebuild the network from")
+    net = instantiate(meta["model_config"])
+    if not isinstance(net, SVRNet):
+        raise ValueError(f"{path}: its model config builds a {type(net).__name__}, not an SVRNet")
+    load_network_weights(net, ckpt, path)
+    net.to(map_location).eval()
+    return net, dict(meta)
+
+
+def load_network_weights(net: SVRNet, checkpoint: dict[str, Any], path) -> None:
+    """Copies the network weights of a loaded checkpoint (``load_checkpoint``) into ``net``; strict:
+    the architectures must match (the error names the file)."""
+    state = {k[len("net."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}
+    try:
+        net.load_state_dict(state, strict=True)
+    except RuntimeError as err:
+        raise ValueError(f"{path}: its network does not match the model ({err})") from None

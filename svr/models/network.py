@@ -1,0 +1,86 @@
+"""SVRNet: encoder -> decoder (coarse SDF) -> refiner (refined SDF), with the grid's box."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+import renderer
+
+from .decoder import SDFDecoder
+from .encoder import ImageEncoder
+from .refiner import SDFRefiner
+
+
+@dataclass(frozen=True)
+class SVRPrediction:
+    """The network's output for B images.
+
+    Attributes:
+        coarse: (B, N, N, N) the decoder's SDF (world units, renderer.SDFGrid layout).
+        refined: (B, N, N, N) the refiner's SDF, or None when the refiner was not run.
+    """
+
+    coarse: torch.Tensor
+    refined: torch.Tensor | None
+
+    @property
+    def final(self) -> torch.Tensor:
+        """The best SDF available: the refined one if it was computed, else the coarse one."""
+        return self.refined if self.refined is not None else self.coarse
+
+
+class SVRNet(nn.Module):
+    """The single-view network of paper section 6 (three plain modules, built from config).
+
+    Args:
+        encoder: image (B, 4, 64, 64) -> code (B, latent_dim).
+        decoder: code -> coarse SDF (B, N, N, N).
+        refiner: coarse SDF -> refined SDF (B, N, N, N).
+        half_side: the SDF grid covers ``[-half_side, half_side]^3`` (world units); the normalised
+            objects lie in [-0.5, 0.5]^3, so a value above 0.5 leaves a margin.
+    """
+
+    def __init__(self, encoder: ImageEncoder, decoder: SDFDecoder, refiner: SDFRefiner,
+                 half_side: float = 0.6) -> None:
+        super().__init__()
+        for name, mod, cls in (("encoder", encoder, ImageEncoder), ("decoder", decoder, SDFDecoder),
+                               ("refiner", refiner, SDFRefiner)):
+            if not isinstance(mod, nn.Module):
+                raise TypeError(f"{name} must be an nn.Module ({cls.__name__}), got {type(mod).__name__}")
+        if not float(half_side) > 0:
+            raise ValueError(f"half_side must be positive, got {half_side!r}")
+        if float(half_side) <= 0.5:
+            raise ValueError(f"half_side must exceed 0.5 so the normalised objects fit, got {half_side!r}")
+        for name, mod in (("decoder", decoder), ("refiner", refiner)):
+            hs = getattr(mod, "half_side", None)
+            if hs is not None and abs(float(hs) - float(half_side)) > 1e-9:
+                raise ValueError(f"{name}.half_side ({hs}) must equal half_side ({half_side})")
+        dec_n = getattr(decoder, "grid_resolution", None)
+        ref_n = getattr(refiner, "grid_resolution", None)
+        if dec_n is not None and ref_n is not None and dec_n != ref_n:
+            raise ValueError(f"decoder.grid_resolution ({dec_n}) must equal refiner.grid_resolution ({ref_n})")
+        self.encoder = encoder
+        self.decoder = decoder
+        self.refiner = refiner
+        self.half_side = float(half_side)
+
+    @property
+    def grid_resolution(self) -> int:
+        return int(self.decoder.grid_resolution)
+
+    @property
+    def voxel_size(self) -> float:
+        """Spacing of the SDF samples (world units)."""
+        return 2.0 * self.half_side / (self.grid_resolution - 1)
+
+    def forward(self, images: torch.Tensor, refine: bool = True) -> SVRPrediction:
+        """images: (B, 4, 64, 64) RGBA in [0, 1] -> SVRPrediction (coarse and, with refine, refined)."""
+        coarse = self.decoder(self.encoder(images))
+        refined = self.refiner(coarse) if refine else None
+        return SVRPrediction(coarse=coarse, refined=refined)
+
+    def grid(self, sdf: torch.Tensor) -> renderer.SDFGrid:
+        """The renderer's view of SDF values (B, N, N, N) over this network's box (no copy)."""
+        return renderer.SDFGrid(sdf, -self.half_side, self.half_side)
