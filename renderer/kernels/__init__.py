@@ -166,7 +166,7 @@ def march(
         raise ValueError(f"backend={backend!r} cannot march a grid on device {grid.device}")
     r = _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings)
     dt, dev = grid.dtype, grid.device
-    values = grid.values.detach().contiguous()
+    values = grid.values.detach().contiguous().reshape(-1)  # a view: no copy of a contiguous grid
     params, iparams = _params(grid, settings)
     inputs = [values, params, iparams, origins.detach().to(dt).contiguous(),
               directions.detach().to(dt).contiguous(), grid_index.to(torch.int64).contiguous(),

@@ -5,8 +5,8 @@ box entry/exit by the slab test, the sign at the start point, sphere tracing wit
 threshold, the closest approach of misses, the search for the deepest point behind hits, and the
 start-inside cases. Everything is scalar code on arrays, so the same ``@njit`` functions compile
 for the CPU (``march_rays_cpu``: ``prange`` over rays) and, called from ``cuda_march_body``, for
-numba's CUDA target (renderer/kernels/cuda.py compiles that body lazily, so this module imports
-on machines without a GPU).
+numba's CUDA target (``make_cuda_kernel`` compiles that body lazily, so this module imports on
+machines without a GPU).
 
 Every function the kernels call lives in this one file on purpose: numba's on-disk cache checks
 only the source file of the function it caches, so a helper in another file could change without
@@ -22,11 +22,15 @@ component, the threshold floor, the threshold scale, the fixed threshold and ``-
 """
 from __future__ import annotations
 
-import math
-
-import numpy as np
-from numba import njit, prange, types
+from numba import njit, prange, types, uintp
 from numba.extending import overload
+
+# Options of the per-ray code: no reference counting (nothing is allocated), and numpy's float
+# division (no zero-divisor check and exception path: divisors here are never zero). The small
+# helpers are inlined into the march at numba's IR level.
+_RAY_OPTIONS = dict(cache=True, _nrt=False, error_model="numpy")
+ray_function = njit(**_RAY_OPTIONS)
+ray_helper = njit(inline="always", **_RAY_OPTIONS)
 
 # numba.cuda, imported by make_cuda_kernel() on first use only (it resolves when the body compiles).
 cuda = None
@@ -40,35 +44,35 @@ NX, NY, NZ, MAX_STEPS, INNER_STEPS, USE_FIXED = 0, 1, 2, 3, 4, 5
 N_IPARAMS = 6
 
 
-def floor_float(x):
-    """floor(x) in x's own float type (np.floor has no scalar version on numba's CUDA target)."""
-    return np.floor(x)
+def float_like(i, like):
+    """The integer i as a float of ``like``'s type (float(i) would be float64 for float32 code)."""
+    return type(like)(i)
 
 
-@overload(floor_float, target="generic")
-def _floor_float_impl(x):
-    if isinstance(x, types.Float):
-        cast = x
+@overload(float_like, target="generic")
+def _float_like_impl(i, like):
+    if isinstance(i, types.Integer) and isinstance(like, types.Float):
+        cast = like
 
-        def impl(x):
-            return cast(math.floor(x))
+        def impl(i, like):
+            return cast(i)
 
         return impl
     return None
 
 
 # min/max of two floats (the builtins fail to type on numba's built-in CUDA target).
-@njit(cache=True, _nrt=False)
+@ray_helper
 def _min(a, b):
     return b if b < a else a
 
 
-@njit(cache=True, _nrt=False)
+@ray_helper
 def _max(a, b):
     return b if b > a else a
 
 
-@njit(cache=True, _nrt=False)
+@ray_helper
 def _safe_inverse(d, params):
     """1 / d with components below the tiny value replaced by it (keeping the sign), as reference."""
     tiny = params[TINY]
@@ -77,7 +81,7 @@ def _safe_inverse(d, params):
     return params[ONE] / d
 
 
-@njit(cache=True, _nrt=False)
+@ray_helper
 def box_interval(ox, oy, oz, dx, dy, dz, params):
     """Slab test for one ray: (t_near, t_far) of the grid's box."""
     inv = _safe_inverse(dx, params)
@@ -98,7 +102,7 @@ def box_interval(ox, oy, oz, dx, dy, dz, params):
     return near, far
 
 
-@njit(cache=True, _nrt=False)
+@ray_helper
 def _cell(p, axis, params):
     """Cell index and fraction along one axis, clamped into the box (as SDFGrid._cells)."""
     u = (p - params[LO + axis]) / params[VOX + axis]
@@ -106,39 +110,38 @@ def _cell(p, axis, params):
         u = params[ZERO]
     if u > params[TOP + axis]:
         u = params[TOP + axis]
-    corner = floor_float(u)
+    # floor(u) is the truncation here (u >= 0): one conversion instruction, no floorf call.
+    i = int(u)
+    corner = float_like(i, u)
     if corner > params[CELL_MAX + axis]:
         corner = params[CELL_MAX + axis]
-    return int(corner), u - corner
+        i = int(corner)
+    return i, u - corner
 
 
-@njit(cache=True, _nrt=False)
-def sample_sdf(values, b, px, py, pz, params):
+@ray_helper
+def sample_sdf(values, b, px, py, pz, params, iparams):
     """Trilinear SDF of grid ``b`` at the world point (px, py, pz), as SDFGrid._sample_flat.
 
-    values: (B, Nx, Ny, Nz) C-contiguous.
+    values: the (B, Nx, Ny, Nz) grids flattened (C order). The flat indices are unsigned, so the
+    loads carry no negative-index wraparound.
     """
     i, wx = _cell(px, 0, params)
     j, wy = _cell(py, 1, params)
     k, wz = _cell(pz, 2, params)
-    c000 = values[b, i, j, k]
-    c001 = values[b, i, j, k + 1]
-    c010 = values[b, i, j + 1, k]
-    c011 = values[b, i, j + 1, k + 1]
-    c100 = values[b, i + 1, j, k]
-    c101 = values[b, i + 1, j, k + 1]
-    c110 = values[b, i + 1, j + 1, k]
-    c111 = values[b, i + 1, j + 1, k + 1]
-    c00 = c000 + (c001 - c000) * wz
-    c01 = c010 + (c011 - c010) * wz
-    c10 = c100 + (c101 - c100) * wz
-    c11 = c110 + (c111 - c110) * wz
+    ny, nz = iparams[NY], iparams[NZ]
+    c000 = uintp(((b * iparams[NX] + i) * ny + j) * nz + k)
+    dz, dy, dx = uintp(1), uintp(nz), uintp(ny * nz)
+    c00 = values[c000] + (values[c000 + dz] - values[c000]) * wz
+    c01 = values[c000 + dy] + (values[c000 + dy + dz] - values[c000 + dy]) * wz
+    c10 = values[c000 + dx] + (values[c000 + dx + dz] - values[c000 + dx]) * wz
+    c11 = values[c000 + dx + dy] + (values[c000 + dx + dy + dz] - values[c000 + dx + dy]) * wz
     c0 = c00 + (c01 - c00) * wy
     c1 = c10 + (c11 - c10) * wy
     return c0 + (c1 - c0) * wx
 
 
-@njit(cache=True, _nrt=False)
+@ray_helper
 def hit_threshold(t, pixel_angle, params, iparams):
     """The hit threshold at distance t: fixed, or the pixel footprint, never below the floor."""
     if iparams[USE_FIXED] != 0:
@@ -147,7 +150,7 @@ def hit_threshold(t, pixel_angle, params, iparams):
     return thr if thr > params[FLOOR] else params[FLOOR]
 
 
-@njit(cache=True, _nrt=False)
+@ray_function
 def march_ray(values, params, iparams, ox, oy, oz, dx, dy, dz, b, pixel_angle):
     """Marches one ray (renderer/reference.py, steps 1-4).
 
@@ -170,7 +173,7 @@ def march_ray(values, params, iparams, ox, oy, oz, dx, dy, dz, b, pixel_angle):
         return zero, False, ex, ey, ez, tc, 0
 
     # The start sample decides the sign and is also the march's first sample (same point).
-    f = sample_sdf(values, b, ox + t0 * dx, oy + t0 * dy, oz + t0 * dz, params)
+    f = sample_sdf(values, b, ox + t0 * dx, oy + t0 * dy, oz + t0 * dz, params, iparams)
     sign = -params[ONE] if f < zero else params[ONE]
     f = sign * f
     t = t0
@@ -190,7 +193,7 @@ def march_ray(values, params, iparams, ox, oy, oz, dx, dy, dz, b, pixel_angle):
         t = t + f
         if not t <= t_far or steps >= max_steps:
             break
-        f = sign * sample_sdf(values, b, ox + t * dx, oy + t * dy, oz + t * dz, params)
+        f = sign * sample_sdf(values, b, ox + t * dx, oy + t * dy, oz + t * dz, params, iparams)
 
     if sign < zero:
         # Began inside the shape (hit or not): the start point carries the silhouette.
@@ -209,7 +212,7 @@ def march_ray(values, params, iparams, ox, oy, oz, dx, dy, dz, b, pixel_angle):
         if thr > step:
             step = thr
         t_new = t_cur + step
-        f_new = sample_sdf(values, b, ox + t_new * dx, oy + t_new * dy, oz + t_new * dz, params)
+        f_new = sample_sdf(values, b, ox + t_new * dx, oy + t_new * dy, oz + t_new * dz, params, iparams)
         inside_box = t_new <= t_far
         if inside_box and f_new < best_in:
             best_in = f_new
@@ -222,7 +225,7 @@ def march_ray(values, params, iparams, ox, oy, oz, dx, dy, dz, b, pixel_angle):
     return t, hit, ox + best_ti * dx, oy + best_ti * dy, oz + best_ti * dz, best_ti, steps
 
 
-@njit(cache=True, _nrt=False)
+@ray_function
 def march_into(r, values, params, iparams, origins, directions, grid_index, pixel_angle,
                t_out, hit_out, extreme_out, t_extreme_out, steps_out):
     """Marches ray r and writes its results: the body both kernels run per ray."""
@@ -240,7 +243,7 @@ def march_into(r, values, params, iparams, origins, directions, grid_index, pixe
     steps_out[r] = steps
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def march_rays_cpu(values, params, iparams, origins, directions, grid_index, pixel_angle,
                    t_out, hit_out, extreme_out, t_extreme_out, steps_out):
     """CPU kernel: one ray per ``prange`` iteration. Shapes as in ``cuda_march_body``."""
@@ -251,9 +254,9 @@ def march_rays_cpu(values, params, iparams, origins, directions, grid_index, pix
 
 def cuda_march_body(values, params, iparams, origins, directions, grid_index, pixel_angle,
                     t_out, hit_out, extreme_out, t_extreme_out, steps_out):
-    """CUDA kernel body (compiled by renderer/kernels/cuda.py): one ray per thread.
+    """CUDA kernel body (compiled by ``make_cuda_kernel``): one ray per thread.
 
-    values (B, Nx, Ny, Nz); params (N_PARAMS,) and the float arrays in the grid dtype; iparams
+    values (B * Nx * Ny * Nz,) the grids flattened; params (N_PARAMS,) and the float arrays in the grid dtype; iparams
     (N_IPARAMS,) int64; origins, directions (R, 3); grid_index (R,) int64; pixel_angle (R,);
     outputs t (R,), hit (R,) uint8, extreme (R, 3), t_extreme (R,), steps (R,) int32.
     """
