@@ -10,9 +10,11 @@ the grid values (and the query points).
 """
 from __future__ import annotations
 
+import math
 from typing import Callable, Sequence, Union
 
 import torch
+from torch.autograd.function import once_differentiable
 
 BoundLike = Union[float, Sequence[float], torch.Tensor]
 
@@ -52,7 +54,8 @@ class SDFGrid:
             raise ValueError("values must hold at least one grid (B >= 1)")
         if min(values.shape[1:]) < 2:
             raise ValueError(f"values needs at least 2 samples per axis, got {tuple(values.shape[1:])}")
-        if not bool(torch.isfinite(values.detach()).all()):
+        lowest, highest = torch.aminmax(values.detach())  # one pass; NaN propagates to both
+        if not (math.isfinite(lowest) and math.isfinite(highest)):
             raise ValueError("values contains NaN or Inf")
         self.values = values
         self.bbox_min = _as_bound(bbox_min, "bbox_min", values.dtype, values.device)
@@ -145,8 +148,7 @@ class SDFGrid:
             (R,) or (B, ...) SDF values, differentiable w.r.t. values and points.
         """
         flat, b, shape = self._flatten(points, batch_index)
-        out = self._sample_flat(self.values.reshape(-1), flat, b)
-        return out.reshape(shape)
+        return self._sample_flat(flat, b).reshape(shape)
 
     def sample_gradient(self, points: torch.Tensor, batch_index: torch.Tensor | None = None) -> torch.Tensor:
         """Central-difference SDF gradient at the grid vertices, trilinearly interpolated at points.
@@ -159,26 +161,37 @@ class SDFGrid:
         """
         flat, b, shape = self._flatten(points, batch_index)
         i0, w = self._cells(flat)
-        values = self.values.reshape(-1)
-        dt, dev = values.dtype, values.device
+        dt, dev = self.values.dtype, self.values.device
+        nx, ny, nz = self.resolution
         size = torch.tensor(self.resolution, device=dev)
-        strides = torch.tensor([self.resolution[1] * self.resolution[2], self.resolution[2], 1], device=dev)
-        bits = _CORNER_BITS.to(dev)
-        corner = i0[:, None, :] + bits  # (R, 8, 3) vertex indices of the cell's corners
-        # One-sided differences on the box faces: divide by the real spacing.
-        hi = torch.minimum(corner + 1, size - 1)
-        lo = torch.clamp(corner - 1, min=0)
-        span = (hi - lo).to(dt) * self.voxel_size
-        at = self._flat_index(b[:, None], corner[..., 0], corner[..., 1], corner[..., 2])  # (R, 8)
-        stencil = at[..., None, None] + torch.stack([(hi - corner) * strides, (lo - corner) * strides], dim=-1)
-        # All 48 stencil values in one gather: one scatter into the grid's gradient in backward.
-        ends = _gather(values, stencil)  # (R, 8, 3, 2)
-        comps = (ends[..., 0] - ends[..., 1]) / span  # (R, 8, 3): the gradient at each corner
-        wsel = torch.where(bits.bool(), w[:, None, :], 1 - w[:, None, :])
-        terms = (wsel[..., 0] * wsel[..., 1] * wsel[..., 2])[..., None] * comps
-        grad = torch.zeros(flat.shape[0], 3, dtype=dt, device=dev)
-        for c in range(8):  # summed corner by corner, in a fixed order
-            grad = grad + terms[:, c]
+        # Per axis the vertex coordinates i0 - 1 .. i0 + 2 clamped into the grid (K, 3, 4): the
+        # corners are entries 1, 2; a corner's central difference reads entries d and d + 2
+        # (one-sided on the box faces, where the clamp repeats a vertex).
+        coords = torch.minimum(torch.clamp(i0[:, :, None] + _STENCIL_STEPS.to(dev), min=0), (size - 1)[:, None])
+        span = (coords[:, :, 2:] - coords[:, :, :2]).to(dt) * self.voxel_size[:, None]  # (K, 3, 2)
+        x, y, z = (b[:, None] * (nx * ny * nz) + coords[:, 0] * (ny * nz)), coords[:, 1] * nz, coords[:, 2]
+        # The 32 distinct vertices the 8 corners' differences read, as flat indices (K, 32): the
+        # cell's own 8, then the 8 beyond its x faces (entries 0 and 3 along x), y faces, z faces.
+        inner_yz = y[:, None, 1:3, None] + z[:, None, None, 1:3]
+        vertex = torch.cat([
+            (x[:, 1:3, None, None] + inner_yz).reshape(-1, 8),
+            (x[:, 0::3, None, None] + inner_yz).reshape(-1, 8),
+            (x[:, 1:3, None, None] + (y[:, None, 0::3, None] + z[:, None, None, 1:3])).reshape(-1, 8),
+            (x[:, 1:3, None, None] + (y[:, None, 1:3, None] + z[:, None, None, 0::3])).reshape(-1, 8),
+        ], dim=1)
+        stencil = self._gather(vertex)  # one gather: one scatter into the gradient in backward
+        tables = _stencil_tables(dev)
+        hi = stencil.index_select(1, tables["hi"]).view(-1, 8, 3)  # per corner and axis
+        lo = stencil.index_select(1, tables["lo"]).view(-1, 8, 3)
+        k = flat.shape[0]
+        span = torch.stack([span[:, 0, :, None, None].expand(k, 2, 2, 2), span[:, 1, None, :, None].expand(k, 2, 2, 2),
+                            span[:, 2, None, None, :].expand(k, 2, 2, 2)], dim=-1).view(k, 8, 3)
+        comps = (hi - lo) / span  # (K, 8, 3): the central differences at each corner
+        wx, wy, wz = torch.stack([1 - w, w], dim=-1).unbind(1)  # (K, 2): weights of bit 0 and bit 1
+        weight = (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(k, 8, 1)
+        grad = torch.zeros(k, 3, dtype=dt, device=dev)
+        for term in (weight * comps).unbind(1):  # summed corner by corner, in a fixed order
+            grad = grad + term
         return grad.reshape(*shape, 3)
 
     def _flatten(self, points: torch.Tensor, batch_index: torch.Tensor | None):
@@ -204,16 +217,51 @@ class SDFGrid:
             shape = points.shape[:-1]
         return points.reshape(-1, 3).to(self.dtype), b, shape
 
-    def _sample_flat(self, values: torch.Tensor, points: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    def _sample_flat(self, points: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
         i0, w = self._cells(points)
         base = self._flat_index(b, i0[:, 0], i0[:, 1], i0[:, 2])
         offsets = (_CORNER_BITS.to(points.device) * torch.tensor(
             [self.resolution[1] * self.resolution[2], self.resolution[2], 1], device=points.device)).sum(-1)
-        # The 8 corners in one gather, ordered c000, c001, c010, ..., c111 (bits x, y, z).
-        c = _gather(values, base[:, None] + offsets)  # (R, 8)
-        c = c[:, 0::2] + (c[:, 1::2] - c[:, 0::2]) * w[:, 2:3]  # along z: c00, c01, c10, c11
-        c = c[:, 0::2] + (c[:, 1::2] - c[:, 0::2]) * w[:, 1:2]  # along y: c0, c1
-        return c[:, 0] + (c[:, 1] - c[:, 0]) * w[:, 0]
+        # The 8 corners in one gather, ordered c000, c001, c010, ..., c111 (bits x, y, z), then
+        # halved along z, y, x (unbind rather than strided slices: cheaper in backward).
+        c = self._gather(base[:, None] + offsets)  # (R, 8)
+        wx, wy, wz = w.unbind(1)
+        c0, c1 = c.view(-1, 4, 2).unbind(-1)
+        c = c0 + (c1 - c0) * wz[:, None]  # c00, c01, c10, c11
+        c0, c1 = c.view(-1, 2, 2).unbind(-1)
+        c = c0 + (c1 - c0) * wy[:, None]  # c0, c1
+        c0, c1 = c.unbind(-1)
+        return c0 + (c1 - c0) * wx
+
+    def _gather(self, index: torch.Tensor) -> torch.Tensor:
+        """The flat grid values at a long index of any shape, differentiable w.r.t. the values.
+
+        index_select, whose backward is one index_add_ (a plain ``values[index]`` is slower both
+        ways); on a grid from ``_with_shared_gradient`` the backward adds into the one shared buffer.
+        """
+        shared = getattr(self, "_shared", None)
+        flat_index = index.reshape(-1)
+        if shared is None:
+            return self.values.reshape(-1).index_select(0, flat_index).view(index.shape)
+        proxy, sink = shared
+        return _SinkGather.apply(proxy, flat_index, sink).view(index.shape)
+
+    def _with_shared_gradient(self) -> "SDFGrid":
+        """The same grid (same values, same box) for one differentiable pass that samples it many times.
+
+        Each sampling of a grid otherwise gets its own full-size gradient in backward (zeroed,
+        scattered into, then summed with the others: several passes over B*Nx*Ny*Nz values); the
+        samplings of the returned grid all scatter into one buffer, handed to ``values`` once.
+        Gradients are the same; only first derivatives are supported (double backward raises).
+        Returns ``self`` when no gradient is being recorded for ``values``.
+        """
+        if not (torch.is_grad_enabled() and self.values.requires_grad):
+            return self
+        out = SDFGrid.__new__(SDFGrid)
+        out.values, out.bbox_min, out.bbox_max = self.values, self.bbox_min, self.bbox_max
+        sink = _GradientSink()
+        out._shared = (_SinkRoot.apply(self.values.reshape(-1), sink), sink)
+        return out
 
     # ------------------------------------------------------------------ whole-grid operations
     def vertex_gradient(self) -> torch.Tensor:
@@ -236,12 +284,97 @@ class SDFGrid:
 
 # (8, 3) the offsets of a cell's corners, corner c = (c >> 2 & 1, c >> 1 & 1, c & 1).
 _CORNER_BITS = torch.tensor([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])
+_STENCIL_STEPS = torch.arange(-1, 3)
 
 
-def _gather(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
-    """values (M,) at a long index of any shape. index_select, whose backward is one index_add_ into
-    the gradient (a plain ``values[index]`` is slower both ways)."""
-    return values.index_select(0, index.reshape(-1)).view(index.shape)
+def _build_stencil_tables() -> dict[str, torch.Tensor]:
+    """Where, among the 32 gathered stencil vertices of ``sample_gradient``, each corner's central
+    difference finds its two ends.
+
+    Vertices are positions (x, y, z) in the per-axis coordinates i0 - 1 .. i0 + 2 (0..3), ordered
+    as ``sample_gradient`` gathers them: the cell's own 8 (all in 1..2), then those beyond the x
+    faces (x in 0, 3), the y faces, the z faces, each group in C order. hi, lo (24,): for corner c
+    and axis a (entry 3 c + a), the vertex after and before the corner along a.
+    """
+    inner, outer = (1, 2), (0, 3)
+    groups = [(inner, inner, inner), (outer, inner, inner), (inner, outer, inner), (inner, inner, outer)]
+    vertices = [(x, y, z) for gx, gy, gz in groups for x in gx for y in gy for z in gz]
+    where = {v: n for n, v in enumerate(vertices)}
+    hi, lo = [], []
+    for c in range(8):
+        bits = ((c >> 2) & 1, (c >> 1) & 1, c & 1)
+        for a in range(3):
+            up = [1 + d for d in bits]
+            down = list(up)
+            up[a], down[a] = bits[a] + 2, bits[a]
+            hi.append(where[tuple(up)])
+            lo.append(where[tuple(down)])
+    return {"hi": torch.tensor(hi), "lo": torch.tensor(lo)}
+
+
+_STENCIL = _build_stencil_tables()
+_STENCIL_ON: dict[torch.device, dict[str, torch.Tensor]] = {}
+
+
+def _stencil_tables(device: torch.device) -> dict[str, torch.Tensor]:
+    if device not in _STENCIL_ON:
+        _STENCIL_ON[device] = {k: v.to(device) for k, v in _STENCIL.items()}
+    return _STENCIL_ON[device]
+
+
+class _GradientSink:
+    """The gradient of one grid's flat values, accumulated from many gathers into one buffer."""
+
+    def __init__(self) -> None:
+        self.grad: torch.Tensor | None = None
+
+    def add(self, index: torch.Tensor, grad: torch.Tensor, numel: int) -> None:
+        if self.grad is None:
+            self.grad = torch.zeros(numel, dtype=grad.dtype, device=grad.device)
+        self.grad.index_add_(0, index, grad)
+
+    def take(self) -> torch.Tensor | None:
+        grad, self.grad = self.grad, None
+        return grad
+
+
+class _SinkRoot(torch.autograd.Function):
+    """Identity on the flat values; in backward it hands on what the gathers put into the sink.
+
+    Autograd runs it after every gather that read its output (they depend on it), so the sink is
+    complete by then.
+    """
+
+    @staticmethod
+    def forward(ctx, flat: torch.Tensor, sink: _GradientSink) -> torch.Tensor:
+        ctx.sink = sink
+        ctx.set_materialize_grads(False)
+        return flat.view_as(flat)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: torch.Tensor | None):
+        collected = ctx.sink.take()
+        if grad is not None:  # the proxy was also used directly
+            collected = grad if collected is None else collected + grad
+        return collected, None
+
+
+class _SinkGather(torch.autograd.Function):
+    """proxy[index] whose backward scatters into the sink instead of making a full-size gradient."""
+
+    @staticmethod
+    def forward(ctx, proxy: torch.Tensor, index: torch.Tensor, sink: _GradientSink) -> torch.Tensor:
+        ctx.save_for_backward(index)
+        ctx.sink, ctx.numel = sink, proxy.shape[0]
+        return proxy.index_select(0, index)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: torch.Tensor):
+        (index,) = ctx.saved_tensors
+        ctx.sink.add(index, grad.contiguous(), ctx.numel)
+        return None, None, None
 
 
 def _resolution3(resolution: Union[int, Sequence[int]]) -> tuple[int, int, int]:

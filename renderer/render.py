@@ -70,6 +70,7 @@ def shade_trace(grid: SDFGrid, cameras: Cameras, trace: TraceResult, scene: Scen
     """The differentiable stage: the passes ``scene.effects`` need, from a fixed TraceResult."""
     b, h, w = trace.hit.shape
     total = b * h * w
+    grid = grid._with_shared_gradient()  # every pass below samples it: one gradient buffer for all
     dt, dev = grid.dtype, grid.device
     cams = cameras.to(device=dev, dtype=dt)
     hit_flat = trace.hit.reshape(-1)
