@@ -287,7 +287,7 @@ class ProceduralDataModule(NMRDataModule):
     """
 
     def __init__(self, cache_dir: PathLike = "data/cache", categories: Optional[Sequence[str]] = None,
-                 train: int = 32, val: int = 4, test: int = 6, data_seed: int = 0, supersample: int = 4,
+                 train: int = 32, val: int = 4, test: int = 6, data_seed: int = 0, supersample: int = 3,
                  voxel_rule: str = "centre", batch_size: int = 32, eval_batch_size: int = 64, views_per_sample: int = 2,
                  samples_per_epoch: Optional[int] = None, category_balanced: bool = False,
                  val_views: Optional[Sequence[int]] = None, val_objects_per_category: Optional[int] = None,

@@ -6,11 +6,14 @@ longest side 1). Per object:
 
 * 24 RGBA views, uint8 (24, 4, 64, 64), with the NMR cameras (``renderer.Cameras.nmr``: elevation
   30, distance 2.732, FOV 30), sphere-traced on the *analytic* SDF, anti-aliased by supersampling
-  (S x S rays per pixel, S = 4 by default; see ``render_shape`` for the adaptive rule), shaded with
-  the fixed light of ``DEFAULT_SHADING`` through ``renderer.shading.shade_lambert`` on a white
-  background, so that training can re-render the same shading with ``ShadingModel.scene()``.
-* solid voxels, bool (32, 32, 32), in the NMR voxel frame: ``vox[i, j, k]`` is occupied iff the
-  analytic SDF is negative at the world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``.
+  (S x S rays per pixel, S = 3 by default, NMR's own renderer used 2 x 2; ``render_shape`` gives
+  the adaptive rule), shaded with the fixed light of ``DEFAULT_SHADING`` through
+  ``renderer.shading.shade_lambert`` on a white background, so that training can re-render the
+  same shading with ``ShadingModel.scene()``.
+* solid voxels, bool (32, 32, 32), in the NMR voxel frame: by default (``voxel_rule="centre"``)
+  ``vox[i, j, k]`` is occupied iff the analytic SDF is negative at the world point
+  ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``; ``voxel_rule="protocol"`` uses the benchmark's
+  mesh voxelisation instead (see ``voxelize_shape``).
 
 ``generate_procedural_dataset`` writes ``{cid}_{split}_images.npz`` / ``{cid}_{split}_voxels.npz``
 (key ``arr_0``, as NMR ShapeNet), a ``metadata.json`` (categories, shading model, settings), and the
@@ -31,6 +34,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional, Sequence, Union
 
+import numba
 import numpy as np
 import torch
 
@@ -389,7 +393,31 @@ def _nmr_rays(image_size: int, num_views: int = NUM_VIEWS) -> tuple[np.ndarray, 
     return cams.eye.numpy().copy(), d.numpy().copy()
 
 
-def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, supersample: int = 4,
+@numba.njit(cache=True)
+def _interior_pixels(hit, t, normals, depth_k, cos_min):
+    """(V, H, W) bool: hit pixels whose 8 neighbours hit at a depth within ``depth_k * t`` and with a
+    normal within ``acos(cos_min)`` (a smooth patch seen by the whole pixel)."""
+    v, h, w = hit.shape
+    out = np.zeros((v, h, w), dtype=np.bool_)
+    for a in range(v):
+        for r in range(1, h - 1):
+            for c in range(1, w - 1):
+                if not hit[a, r, c]:
+                    continue
+                ok = True
+                for dr in range(-1, 2):
+                    for dc in range(-1, 2):
+                        rr, cc = r + dr, c + dc
+                        if not hit[a, rr, cc] or abs(t[a, rr, cc] - t[a, r, c]) >= depth_k * t[a, r, c]:
+                            ok = False
+                        elif (normals[a, rr, cc, 0] * normals[a, r, c, 0] + normals[a, rr, cc, 1] * normals[a, r, c, 1]
+                              + normals[a, rr, cc, 2] * normals[a, r, c, 2]) <= cos_min:
+                            ok = False
+                out[a, r, c] = ok
+    return out
+
+
+def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, supersample: int = 3,
                  image_size: int = IMAGE_SIZE, num_views: int = NUM_VIEWS, adaptive: bool = True) -> np.ndarray:
     """The NMR views of an analytic shape, anti-aliased.
 
@@ -436,21 +464,8 @@ def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, super
     normals1[hit1] = surface_normals(shape, points1)
 
     # interior pixels: hit, and so are the 8 neighbours, on a smooth patch at similar depth
-    hit_img = hit1.reshape(v, h, w)
-    t_img = t_hit1.reshape(v, h, w)
-    n_img = normals1.reshape(v, h, w, 3)
-    interior = hit_img.copy()
-    interior[:, 0, :] = interior[:, -1, :] = interior[:, :, 0] = interior[:, :, -1] = False
-    for dr in (-1, 0, 1):
-        for dc in (-1, 0, 1):
-            if dr == 0 and dc == 0:
-                continue
-            nb_hit = np.roll(hit_img, (dr, dc), axis=(1, 2))
-            nb_t = np.roll(t_img, (dr, dc), axis=(1, 2))
-            nb_n = np.roll(n_img, (dr, dc), axis=(1, 2))
-            interior &= nb_hit & (np.abs(nb_t - t_img) < 3.0 * pixel_angle * t_img)
-            interior &= (nb_n * n_img).sum(-1) > 0.97
-    interior = interior.reshape(-1)
+    interior = _interior_pixels(hit1.reshape(v, h, w), t_hit1.reshape(v, h, w), normals1.reshape(v, h, w, 3),
+                                3.0 * pixel_angle, 0.97).reshape(-1)
     if not adaptive:
         interior[:] = False
         clear = np.zeros_like(clear)
@@ -472,9 +487,11 @@ def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, super
     p_sub = eyes[view2[hit2]] + t_hit2[hit2, None] * d2[hit2]
     n_sub = surface_normals(shape, p_sub) if len(p_sub) else np.zeros((0, 3))
     scene = shading.scene(("shading",))
-    pts = torch.from_numpy(np.concatenate([p_int, p_sub]))
-    eye_all = torch.from_numpy(eyes[np.concatenate([view_of[use1], view2[hit2]])])
-    rgb = shade_lambert(torch.from_numpy(np.concatenate([n_int, n_sub])), pts, eye_all, scene).numpy()
+    # float32, as training renders: the 8-bit result does not see the difference
+    pts = torch.from_numpy(np.concatenate([p_int, p_sub]).astype(np.float32))
+    eye_all = torch.from_numpy(eyes[np.concatenate([view_of[use1], view2[hit2]])].astype(np.float32))
+    nrm = torch.from_numpy(np.concatenate([n_int, n_sub]).astype(np.float32))
+    rgb = shade_lambert(nrm, pts, eye_all, scene).double().numpy()
     bg = np.asarray(shading.background, dtype=np.float64)
 
     out = np.zeros((n_pix, 4))
@@ -541,7 +558,7 @@ class ProceduralSettings:
     val: int = 4
     test: int = 6
     seed: int = 0
-    supersample: int = 4
+    supersample: int = 3
     voxel_rule: str = "centre"
 
     def __post_init__(self) -> None:
