@@ -162,30 +162,24 @@ class SDFGrid:
         flat, b, shape = self._flatten(points, batch_index)
         i0, w = self._cells(flat)
         dt, dev = self.values.dtype, self.values.device
-        nx, ny, nz = self.resolution
-        size = torch.tensor(self.resolution, device=dev)
-        # Per axis the vertex coordinates i0 - 1 .. i0 + 2 clamped into the grid (K, 3, 4): the
-        # corners are entries 1, 2; a corner's central difference reads entries d and d + 2
-        # (one-sided on the box faces, where the clamp repeats a vertex).
-        coords = torch.minimum(torch.clamp(i0[:, :, None] + _STENCIL_STEPS.to(dev), min=0), (size - 1)[:, None])
-        span = (coords[:, :, 2:] - coords[:, :, :2]).to(dt) * self.voxel_size[:, None]  # (K, 3, 2)
-        x, y, z = (b[:, None] * (nx * ny * nz) + coords[:, 0] * (ny * nz)), coords[:, 1] * nz, coords[:, 2]
-        # The 32 distinct vertices the 8 corners' differences read, as flat indices (K, 32): the
-        # cell's own 8, then the 8 beyond its x faces (entries 0 and 3 along x), y faces, z faces.
-        inner_yz = y[:, None, 1:3, None] + z[:, None, None, 1:3]
-        vertex = torch.cat([
-            (x[:, 1:3, None, None] + inner_yz).reshape(-1, 8),
-            (x[:, 0::3, None, None] + inner_yz).reshape(-1, 8),
-            (x[:, 1:3, None, None] + (y[:, None, 0::3, None] + z[:, None, None, 1:3])).reshape(-1, 8),
-            (x[:, 1:3, None, None] + (y[:, None, 1:3, None] + z[:, None, None, 0::3])).reshape(-1, 8),
-        ], dim=1)
+        k = flat.shape[0]
+        tables = _stencil_tables(dev, self.resolution)
+        # The 32 distinct vertices the central differences at the cell's 8 corners read, as flat
+        # indices (K, 32); on the box faces the differences are one-sided (the clamp repeats a
+        # vertex): those few cells are redone with the clamp.
+        vertex = self._flat_index(b, i0[:, 0], i0[:, 1], i0[:, 2])[:, None] + tables["offsets"]
+        low = i0 == 0
+        high = i0 == torch.tensor(self.resolution, device=dev) - 2
+        on_face = (low | high).any(dim=1).nonzero().squeeze(1)
+        if on_face.numel():
+            vertex[on_face] = self._clamped_stencil(b[on_face], i0[on_face], tables["positions"])
+        # Spacing of each corner's difference: 2 voxels, 1 where one-sided (K, 8, 3).
+        vox = self.voxel_size
+        spans = torch.cat([(2 - low.to(dt)) * vox, (2 - high.to(dt)) * vox], dim=1)  # (K, 6): bit 0, bit 1
+        span = spans.index_select(1, tables["span"]).view(k, 8, 3)
         stencil = self._gather(vertex)  # one gather: one scatter into the gradient in backward
-        tables = _stencil_tables(dev)
         hi = stencil.index_select(1, tables["hi"]).view(-1, 8, 3)  # per corner and axis
         lo = stencil.index_select(1, tables["lo"]).view(-1, 8, 3)
-        k = flat.shape[0]
-        span = torch.stack([span[:, 0, :, None, None].expand(k, 2, 2, 2), span[:, 1, None, :, None].expand(k, 2, 2, 2),
-                            span[:, 2, None, None, :].expand(k, 2, 2, 2)], dim=-1).view(k, 8, 3)
         comps = (hi - lo) / span  # (K, 8, 3): the central differences at each corner
         wx, wy, wz = torch.stack([1 - w, w], dim=-1).unbind(1)  # (K, 2): weights of bit 0 and bit 1
         weight = (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(k, 8, 1)
@@ -193,6 +187,14 @@ class SDFGrid:
         for term in (weight * comps).unbind(1):  # summed corner by corner, in a fixed order
             grad = grad + term
         return grad.reshape(*shape, 3)
+
+    def _clamped_stencil(self, b: torch.Tensor, i0: torch.Tensor, positions: torch.Tensor) -> torch.Tensor:
+        """Flat indices (K, 32) of the stencil vertices at ``positions`` (32, 3) (per axis 0..3 for
+        i0 - 1 .. i0 + 2), each coordinate clamped into the grid."""
+        nx, ny, nz = self.resolution
+        top = torch.tensor(self.resolution, device=i0.device) - 1
+        coords = torch.minimum(torch.clamp(i0[:, None, :] + positions - 1, min=0), top)  # (K, 32, 3)
+        return self._flat_index(b[:, None], coords[..., 0], coords[..., 1], coords[..., 2])
 
     def _flatten(self, points: torch.Tensor, batch_index: torch.Tensor | None):
         if points.shape[-1] != 3:
@@ -284,7 +286,6 @@ class SDFGrid:
 
 # (8, 3) the offsets of a cell's corners, corner c = (c >> 2 & 1, c >> 1 & 1, c & 1).
 _CORNER_BITS = torch.tensor([[(c >> 2) & 1, (c >> 1) & 1, c & 1] for c in range(8)])
-_STENCIL_STEPS = torch.arange(-1, 3)
 
 
 def _build_stencil_tables() -> dict[str, torch.Tensor]:
@@ -294,7 +295,8 @@ def _build_stencil_tables() -> dict[str, torch.Tensor]:
     Vertices are positions (x, y, z) in the per-axis coordinates i0 - 1 .. i0 + 2 (0..3), ordered
     as ``sample_gradient`` gathers them: the cell's own 8 (all in 1..2), then those beyond the x
     faces (x in 0, 3), the y faces, the z faces, each group in C order. hi, lo (24,): for corner c
-    and axis a (entry 3 c + a), the vertex after and before the corner along a.
+    and axis a (entry 3 c + a), the vertex after and before the corner along a; span (24,): which
+    spacing it divides by, in (bit 0: x, y, z, bit 1: x, y, z). positions (32, 3): the vertices.
     """
     inner, outer = (1, 2), (0, 3)
     groups = [(inner, inner, inner), (outer, inner, inner), (inner, outer, inner), (inner, inner, outer)]
@@ -309,17 +311,24 @@ def _build_stencil_tables() -> dict[str, torch.Tensor]:
             up[a], down[a] = bits[a] + 2, bits[a]
             hi.append(where[tuple(up)])
             lo.append(where[tuple(down)])
-    return {"hi": torch.tensor(hi), "lo": torch.tensor(lo)}
+    span = [3 * ((c >> (2 - a)) & 1) + a for c in range(8) for a in range(3)]
+    return {"hi": torch.tensor(hi), "lo": torch.tensor(lo), "span": torch.tensor(span),
+            "positions": torch.tensor(vertices)}
 
 
 _STENCIL = _build_stencil_tables()
-_STENCIL_ON: dict[torch.device, dict[str, torch.Tensor]] = {}
+_STENCIL_ON: dict[tuple, dict[str, torch.Tensor]] = {}
 
 
-def _stencil_tables(device: torch.device) -> dict[str, torch.Tensor]:
-    if device not in _STENCIL_ON:
-        _STENCIL_ON[device] = {k: v.to(device) for k, v in _STENCIL.items()}
-    return _STENCIL_ON[device]
+def _stencil_tables(device: torch.device, resolution: tuple[int, int, int]) -> dict[str, torch.Tensor]:
+    """The stencil tables on ``device``, with ``offsets`` (32,): the vertices' flat offsets from
+    the cell's first corner in a grid of this resolution."""
+    key = (device, resolution)
+    if key not in _STENCIL_ON:
+        strides = torch.tensor([resolution[1] * resolution[2], resolution[2], 1])
+        offsets = ((_STENCIL["positions"] - 1) * strides).sum(-1)
+        _STENCIL_ON[key] = {**{k: v.to(device) for k, v in _STENCIL.items()}, "offsets": offsets.to(device)}
+    return _STENCIL_ON[key]
 
 
 class _GradientSink:

@@ -487,3 +487,81 @@ def test_cuda_kernel_compiles_to_ptx(dtype, monkeypatch):
            arr(f, 1), arr(types.uint8, 1), arr(f, 2), arr(f, 1), arr(types.int32, 1))
     ptx, _ = cuda.compile_ptx(raymarch.cuda_march_body, sig, cc=(8, 0))
     assert ".entry" in ptx or ".visible .entry" in ptx
+
+
+# ---------------------------------------------------------------------------- stage-2 speed-ups
+def _gradient_per_corner(grid: SDFGrid, points: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """The normal construction written plainly (one gather per corner and axis), to check the
+    vectorised SDFGrid.sample_gradient against."""
+    values = grid.values.reshape(-1)
+    size = grid.resolution
+    i0, w = grid._cells(points)
+    grad = torch.zeros(points.shape[0], 3, dtype=values.dtype)
+    for corner in range(8):
+        bits = ((corner >> 2) & 1, (corner >> 1) & 1, corner & 1)
+        idx = [i0[:, a] + bits[a] for a in range(3)]
+        wc = ((w[:, 0] if bits[0] else 1 - w[:, 0]) * (w[:, 1] if bits[1] else 1 - w[:, 1])
+              * (w[:, 2] if bits[2] else 1 - w[:, 2]))
+        comps = []
+        for a in range(3):
+            hi, lo = list(idx), list(idx)
+            hi[a] = torch.clamp(idx[a] + 1, max=size[a] - 1)
+            lo[a] = torch.clamp(idx[a] - 1, min=0)
+            span = (hi[a] - lo[a]).to(values.dtype) * grid.voxel_size[a]
+            comps.append((values[grid._flat_index(b, *hi)] - values[grid._flat_index(b, *lo)]) / span)
+        grad = grad + wc[:, None] * torch.stack(comps, dim=-1)
+    return grad
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("res", [(2, 2, 2), (5, 7, 9), (2, 6, 3), (12, 12, 12)])
+def test_vectorised_normal_stencil_matches_the_per_corner_formula(res, dtype):
+    """Same values bit for bit (faces, edges, corners of the box, points outside it, N = 2), and
+    the same gradients w.r.t. the grid values and the points."""
+    gen = torch.Generator().manual_seed(sum(res))
+    values = torch.randn(2, *res, generator=gen, dtype=torch.float64).to(dtype)
+    pts = torch.rand(400, 3, generator=gen, dtype=torch.float64).to(dtype) * 2.6 - 1.3
+    pts[:8] = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0], [-1.0, 1.0, 0.3], [1.0, 0.0, -1.0],
+                            [0.0, -1.0, 1.0], [1.0, -0.2, 0.1], [0.2, 1.0, 0.5], [-0.4, 0.3, -1.0]], dtype=dtype)
+    b = torch.randint(0, 2, (400,), generator=gen)
+    results = []
+    for fn in (lambda g, p: g.sample_gradient(p, b), lambda g, p: _gradient_per_corner(g, p, b)):
+        v = values.clone().requires_grad_(True)
+        p = pts.clone().requires_grad_(True)
+        out = fn(SDFGrid(v, -1.0, 1.0), p)
+        (out * torch.tensor([0.3, -1.0, 2.0], dtype=dtype)).sin().sum().backward()
+        results.append((out.detach(), v.grad, p.grad))
+    (fast, dv_fast, dp_fast), (plain, dv_plain, dp_plain) = results
+    assert torch.equal(fast, plain)
+    tol = dict(rtol=1e-5, atol=1e-4) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-11)
+    torch.testing.assert_close(dv_fast, dv_plain, **tol)
+    torch.testing.assert_close(dp_fast, dp_plain, **tol)
+
+
+def test_shared_gradient_buffer_gives_the_plain_gradients():
+    """A render's samplings share one gradient buffer (SDFGrid._with_shared_gradient): same
+    gradients as separate samplings, also with retain_graph and two backward passes, and values
+    that do not require grad take the plain path."""
+    values = random_smooth_values(2, 12, seed=3, dtype=torch.float64)
+    gen = torch.Generator().manual_seed(0)
+    pts = torch.rand(300, 3, generator=gen, dtype=torch.float64) * 2 - 1
+    b = torch.randint(0, 2, (300,), generator=gen)
+
+    def loss(grid):
+        return (grid.sample(pts, b).sin().sum() + grid.sample_gradient(pts[:100], b[:100]).pow(2).sum()
+                + grid.sample(pts[50:] * 0.5, b[50:]).sum())
+
+    v = values.clone().requires_grad_(True)
+    (plain,) = torch.autograd.grad(loss(SDFGrid(v)), v)
+    shared = SDFGrid(v)._with_shared_gradient()
+    assert getattr(shared, "_shared", None) is not None
+    total = loss(shared)
+    total.backward(retain_graph=True)
+    first = v.grad.clone()
+    total.backward()
+    torch.testing.assert_close(first, plain, rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(v.grad, 2 * plain, rtol=1e-12, atol=1e-12)
+    frozen = SDFGrid(values)
+    assert frozen._with_shared_gradient() is frozen
+    with torch.no_grad():
+        assert SDFGrid(v)._with_shared_gradient().values is v

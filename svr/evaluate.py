@@ -1,0 +1,534 @@
+"""Benchmark evaluation of a checkpoint: per-category 3D IoU in the paper's layout (``python -m svr.evaluate``).
+
+Command line (configs/eval.yaml; hydra overrides)::
+
+    python -m svr.evaluate ckpt_path=RUN/joint/checkpoints/best.ckpt                # procedural test split
+    python -m svr.evaluate ckpt_path=X.ckpt data=nmr data.root=/data/NMR_ShapeNet   # the paper's benchmark
+    python -m svr.evaluate ckpt_path=X.ckpt split=val compare_coarse=true device=cuda protocol_workers=8
+
+The protocol (SPEC section 5, ``svr.metrics``): every one of the 24 views of every object of the
+split is one prediction; its SDF grid becomes a marching-cubes mesh, the mesh 32^3 voxels by the
+benchmark's rules, and IoU is taken against the object's voxels; a category's IoU is the mean over
+its images, the reported mean the unweighted mean over the categories.
+
+It prints the table (categories as columns, mean last; for NMR ShapeNet with the paper's reference
+rows) and writes into ``output_dir`` (each file atomically): ``table.md``, ``table.csv``,
+``iou.json`` (``{"split", "categories": {name: iou}, "mean", ...}``), ``per_object.csv`` (worst
+objects first) and ``per_image.csv``.
+
+Python API (reused by drivers such as a demo, so there is one implementation of the table)::
+
+    result = evaluate(load_model("best.ckpt"), datamodule, split="test")
+    print(format_table(result)); write_report(result, "eval_out")
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+import os
+import sys
+import time
+import warnings
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Optional, Sequence, Union
+
+import numpy as np
+import torch
+
+from .data.nmr import NMR_CATEGORIES, NUM_VIEWS, SPLITS
+from .infer import ModelLike, as_model, ensure_output_dir, predict_sdf, write_atomic
+from .metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table, voxel_iou, voxels_protocol
+
+log = logging.getLogger(__name__)
+
+PathLike = Union[str, os.PathLike]
+NMR_CATEGORY_IDS = frozenset(cid for cid, _ in NMR_CATEGORIES)
+
+
+@dataclass(frozen=True)
+class ReferenceRow:
+    """A published row of the paper's single-view table (3D IoU, NMR ShapeNet test split).
+
+    Attributes:
+        method: the row's label.
+        mean: the published mean over the 13 categories.
+        categories: per-category IoU by category id; empty where SPEC does not give them.
+    """
+
+    method: str
+    mean: float
+    categories: Mapping[str, float] = field(default_factory=dict)
+
+
+# SPEC sections 3 and 5: the paper's table. Only SDFDiff's per-category values are in SPEC; the
+# other rows show their means only.
+PAPER_REFERENCE_ROWS: tuple[ReferenceRow, ...] = (
+    ReferenceRow("NMR (paper)", 0.6015),
+    ReferenceRow("SoftRas, silhouettes (paper)", 0.6234),
+    ReferenceRow("SoftRas, full (paper)", 0.6464),
+    ReferenceRow("SDFDiff (paper)", PAPER_SDFDIFF_MEAN_IOU, PAPER_SDFDIFF_IOU),
+)
+
+
+# ------------------------------------------------------------------------------------------------
+# Results
+
+
+@dataclass(frozen=True)
+class EvaluationResult:
+    """Per-image benchmark IoU of one model on one split, and its tables.
+
+    Per-image arrays have one entry per prediction (M = objects x views), in the order category,
+    object, view.
+
+    Attributes:
+        split: "train", "val" or "test".
+        dataset: a description of the data (kind and folder).
+        categories: the data's (category id, name) pairs; ``category`` indexes them.
+        is_nmr_shapenet: every category is one of the 13 NMR ShapeNet ids (reference rows apply).
+        checkpoint: the model's file (None for a network given directly); stage: its training stage.
+        output: which SDF the main row scores: "refined" or "coarse".
+        category, object_index, view: (M,) int64.
+        iou: (M,) float64 benchmark IoU of ``output``; iou_coarse: (M,) of the coarse SDF, or None.
+        voxels: (M, 32, 32, 32) bool predicted voxels (NMR frame) of ``output``, if kept.
+        views_per_object: views evaluated per object (24 for the protocol).
+        full_protocol: every view of every object was evaluated (no thinning).
+        seconds: wall time.
+    """
+
+    split: str
+    dataset: str
+    categories: tuple[tuple[str, str], ...]
+    is_nmr_shapenet: bool
+    checkpoint: Optional[str]
+    stage: str
+    output: str
+    category: np.ndarray
+    object_index: np.ndarray
+    view: np.ndarray
+    iou: np.ndarray
+    iou_coarse: Optional[np.ndarray] = None
+    voxels: Optional[np.ndarray] = None
+    views_per_object: int = NUM_VIEWS
+    full_protocol: bool = True
+    seconds: float = 0.0
+
+    @property
+    def table(self) -> IoUTable:
+        """Per-category IoU of ``output`` and their unweighted mean (``svr.metrics.iou_table``)."""
+        return iou_table(self.iou, self.category, self.categories)
+
+    @property
+    def coarse_table(self) -> Optional[IoUTable]:
+        return iou_table(self.iou_coarse, self.category, self.categories) if self.iou_coarse is not None else None
+
+    @property
+    def present(self) -> list[int]:
+        """Indices of the categories with at least one image (the table's columns)."""
+        return sorted(set(int(c) for c in np.unique(self.category)))
+
+    @property
+    def mean(self) -> float:
+        return self.table.mean
+
+    def index_of(self, category: int, object_index: int, view: int) -> int:
+        """Position in the per-image arrays of (category index, object index, view).
+
+        Raises:
+            KeyError when that image was not evaluated.
+        """
+        hit = np.flatnonzero((self.category == category) & (self.object_index == object_index) & (self.view == view))
+        if not len(hit):
+            raise KeyError(f"(category {category}, object {object_index}, view {view}) was not evaluated")
+        return int(hit[0])
+
+    def per_object(self) -> list[dict[str, Any]]:
+        """One row per object: mean and worst IoU over its views and the worst view; worst objects first."""
+        rows = []
+        keys = np.stack([self.category, self.object_index], axis=1)
+        uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        for n, (c, o) in enumerate(uniq):
+            sel = np.flatnonzero(inverse == n)
+            worst = sel[int(np.argmin(self.iou[sel]))]
+            cid, name = self.categories[int(c)]
+            row = {"category_id": cid, "category": name, "object_index": int(o), "views": len(sel),
+                   "iou_mean": float(self.iou[sel].mean()), "iou_min": float(self.iou[worst]),
+                   "worst_view": int(self.view[worst])}
+            if self.iou_coarse is not None:
+                row["iou_coarse_mean"] = float(self.iou_coarse[sel].mean())
+            rows.append(row)
+        rows.sort(key=lambda r: (r["iou_mean"], r["category_id"], r["object_index"]))
+        return rows
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary: ``{"split", "categories": {name: iou}, "mean", ...}`` (present categories)."""
+        table = self.table
+        rows = [table.rows[c] for c in self.present]
+        out: dict[str, Any] = {
+            "split": self.split,
+            "dataset": self.dataset,
+            "checkpoint": self.checkpoint,
+            "stage": self.stage,
+            "output": self.output,
+            "categories": {r.name: r.iou for r in rows},
+            "mean": table.mean,
+            "images": {r.name: r.images for r in rows},
+            "category_ids": {r.name: r.category_id for r in rows},
+            "num_images": int(len(self.iou)),
+            "num_objects": int(len(np.unique(np.stack([self.category, self.object_index], 1), axis=0)))
+            if len(self.iou) else 0,
+            "views_per_object": self.views_per_object,
+            "full_protocol": self.full_protocol,
+            "protocol": "marching cubes of each view's SDF -> NMR 32^3 voxelisation (dilated surface, "
+                        "vertices, 6-connected fill) -> IoU per image; category = mean over its images; "
+                        "mean = unweighted mean over categories",
+            "seconds": self.seconds,
+        }
+        coarse = self.coarse_table
+        if coarse is not None:
+            out["coarse"] = {"categories": {coarse.rows[c].name: coarse.rows[c].iou for c in self.present},
+                             "mean": coarse.mean}
+        if self.is_nmr_shapenet:
+            out["reference"] = {r.method: {"mean": r.mean, "categories": {
+                name: r.categories[cid] for cid, name in self.categories if cid in r.categories}}
+                for r in PAPER_REFERENCE_ROWS}
+        return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Evaluation
+
+
+def _protocol_voxels(values: np.ndarray, half_side: float) -> np.ndarray:
+    """(B, N, N, N) SDF grids over ``[-half_side, half_side]^3`` -> (B, 32, 32, 32) bool benchmark
+    voxels (NMR frame). A top-level function so that worker processes can run it."""
+    return voxels_protocol(torch.from_numpy(values), -half_side, half_side).numpy()
+
+
+def _check_int(value, name: str, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
+    return value
+
+
+def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, str]], split: str,
+                     dataset: str = "", views: Optional[Sequence[int]] = None,
+                     max_objects_per_category: Optional[int] = None, batch_size: int = 32, num_workers: int = 0,
+                     compare_coarse: bool = False, protocol_workers: int = 0, keep_voxels: bool = False,
+                     progress: bool = True) -> EvaluationResult:
+    """Runs the benchmark protocol over the (object, view) images of a split's objects.
+
+    Args:
+        model: LoadedModel, SVRNet or checkpoint path (``svr.infer.as_model``).
+        objects: the split's per-object dataset (``svr.data.nmr.NMRDataset``, e.g. ``datamodule.dataset(split)``).
+        categories: (id, name) pairs, the order of the dataset's category indices.
+        split: the split's name (reported).
+        dataset: a description of the data (reported).
+        views, max_objects_per_category: thin the evaluation (default: every view of every object,
+            the protocol); a thinned run is marked ``full_protocol=False``.
+        batch_size: images per forward pass; num_workers: DataLoader workers.
+        compare_coarse: also score the coarse SDF (the refiner's gain).
+        protocol_workers: processes for the CPU-bound mesh voxelisation (0: in this process).
+        keep_voxels: keep every predicted voxel grid in the result (M x 4 KiB).
+        progress: a tqdm progress bar over the images.
+    """
+    from torch.utils.data import DataLoader
+    from tqdm.auto import tqdm
+
+    from .data.datamodule import EvalViews
+    from .data.types import collate_batch
+
+    _check_int(batch_size, "batch_size", 1)
+    _check_int(num_workers, "num_workers", 0)
+    _check_int(protocol_workers, "protocol_workers", 0)
+    m = as_model(model)
+    categories = tuple((str(c), str(n)) for c, n in categories)
+    items = EvalViews(objects, views, max_objects_per_category)
+    with_coarse = bool(compare_coarse) and m.uses_refiner
+    if compare_coarse and not m.uses_refiner:
+        warnings.warn("compare_coarse: the checkpoint is from the coarse stage (no trained refiner); "
+                      "its output already is the coarse SDF", UserWarning, stacklevel=2)
+    if m.categories is not None and {c for c, _ in m.categories} != {c for c, _ in categories}:
+        warnings.warn(f"the checkpoint was trained on categories {[n for _, n in m.categories]}, the data has "
+                      f"{[n for _, n in categories]}", UserWarning, stacklevel=2)
+    loader = DataLoader(items, batch_size=batch_size, shuffle=False, num_workers=num_workers,
+                        collate_fn=collate_batch, pin_memory=m.device.type == "cuda")
+    pool = None
+    if protocol_workers > 0:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(protocol_workers, mp_context=multiprocessing.get_context("spawn"))
+    cats, objs, vws, ious, ious_c, kept = [], [], [], [], [], []
+    pending: deque = deque()
+
+    def finish(bar) -> None:
+        batch, job = pending.popleft()
+        vox = job.result() if pool is not None else job
+        b = len(batch)
+        gt = batch.voxels.cpu()
+        ious.append(voxel_iou(torch.from_numpy(vox[:b]), gt).numpy())
+        if with_coarse:
+            ious_c.append(voxel_iou(torch.from_numpy(vox[b:]), gt).numpy())
+        if keep_voxels:
+            kept.append(vox[:b])
+        cats.append(batch.category.numpy())
+        objs.append(batch.object_index.numpy())
+        vws.append(batch.view_ids[:, 0].numpy())
+        bar.update(b)
+
+    start = time.perf_counter()
+    try:
+        with tqdm(total=len(items), desc=f"evaluate {split}", unit="img", disable=not progress) as bar:
+            for batch in loader:
+                pred = predict_sdf(m, batch.images[:, 0], batch_size=len(batch))
+                grids = [pred.final] + ([pred.coarse] if with_coarse else [])
+                values = torch.cat(grids).detach().float().cpu().numpy()
+                job = (pool.submit(_protocol_voxels, values, m.half_side) if pool is not None
+                       else _protocol_voxels(values, m.half_side))
+                pending.append((batch, job))
+                while len(pending) > (2 * protocol_workers if pool is not None else 0):
+                    finish(bar)
+            while pending:
+                finish(bar)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+
+    def cat(parts, dtype):
+        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+
+    return EvaluationResult(
+        split=split, dataset=dataset, categories=categories,
+        is_nmr_shapenet=bool(categories) and all(c in NMR_CATEGORY_IDS for c, _ in categories),
+        checkpoint=str(m.checkpoint) if m.checkpoint is not None else None, stage=m.stage, output=m.output_name,
+        category=cat(cats, np.int64), object_index=cat(objs, np.int64), view=cat(vws, np.int64),
+        iou=cat(ious, np.float64), iou_coarse=cat(ious_c, np.float64) if with_coarse else None,
+        voxels=(np.concatenate(kept) if kept else np.zeros((0, 32, 32, 32), bool)) if keep_voxels else None,
+        views_per_object=len(items.views),
+        full_protocol=len(items.views) == NUM_VIEWS and max_objects_per_category is None,
+        seconds=time.perf_counter() - start,
+    )
+
+
+def describe_data(datamodule) -> str:
+    """A short description of a data module: its kind and folder."""
+    from .data.datamodule import ProceduralDataModule
+
+    root = getattr(datamodule, "root", None)
+    if isinstance(datamodule, ProceduralDataModule):
+        return f"procedural ({root})"
+    cats = getattr(datamodule, "categories", None) or []
+    kind = "NMR ShapeNet" if cats and all(c in NMR_CATEGORY_IDS for c, _ in cats) else "NMR-format data"
+    return f"{kind} ({root})"
+
+
+def evaluate(model: ModelLike, datamodule, split: str = "test", **kwargs) -> EvaluationResult:
+    """``evaluate_objects`` on a data module's split (``svr.data.datamodule.NMRDataModule`` or
+    ``ProceduralDataModule``; anything with ``categories`` and ``dataset(split)``).
+
+    A procedural dataset is generated if missing; NMR files are converted to memory-mapped ``.npy``
+    for this split only (when the data module's ``prepare`` is on).
+
+    Args:
+        kwargs: as ``evaluate_objects`` (views, batch_size, compare_coarse, ...).
+    """
+    from .data.datamodule import ProceduralDataModule
+    from .data.nmr import prepare_nmr
+
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    if not hasattr(datamodule, "dataset") or not hasattr(datamodule, "categories"):
+        raise TypeError(f"datamodule must have categories and dataset(split) (an NMRDataModule), "
+                        f"got {type(datamodule).__name__}")
+    if isinstance(datamodule, ProceduralDataModule):
+        datamodule.prepare_data()
+    elif getattr(datamodule, "prepare", False):
+        prepare_nmr(datamodule.root, getattr(datamodule, "prepared_dir", None),
+                    [c for c, _ in datamodule.categories], (split,), progress=kwargs.get("progress", True))
+    return evaluate_objects(model, datamodule.dataset(split), datamodule.categories, split,
+                            describe_data(datamodule), **kwargs)
+
+
+# ------------------------------------------------------------------------------------------------
+# Tables
+
+
+def _fmt(x: Optional[float]) -> str:
+    return "" if x is None or not math.isfinite(x) else f"{x:.4f}"
+
+
+def table_rows(result: EvaluationResult) -> tuple[list[str], list[list[str]]]:
+    """The paper's layout as strings: header ``["method", <category names>..., "mean"]`` and rows
+    (ours, ours coarse, the image counts, then the reference rows for NMR ShapeNet; blank cells
+    where a value is not known)."""
+    cols = result.present
+    table = result.table
+    header = ["method"] + [table.rows[c].name for c in cols] + ["mean"]
+    rows = [[f"ours ({result.output})"] + [_fmt(table.rows[c].iou) for c in cols] + [_fmt(table.mean)]]
+    coarse = result.coarse_table
+    if coarse is not None:
+        rows.append(["ours (coarse)"] + [_fmt(coarse.rows[c].iou) for c in cols] + [_fmt(coarse.mean)])
+    rows.append(["images"] + [str(table.rows[c].images) for c in cols] + [str(len(result.iou))])
+    if result.is_nmr_shapenet:
+        for ref in PAPER_REFERENCE_ROWS:
+            rows.append([ref.method] + [_fmt(ref.categories.get(table.rows[c].category_id)) for c in cols]
+                        + [_fmt(ref.mean)])
+    return header, rows
+
+
+def table_notes(result: EvaluationResult) -> list[str]:
+    """The lines printed under the table (what the numbers are and where they come from)."""
+    notes = []
+    if not result.full_protocol:
+        notes.append(f"Thinned run ({result.views_per_object} views per object or fewer objects): "
+                     "not the benchmark protocol's number.")
+    if result.is_nmr_shapenet:
+        notes.append("Reference rows: the SDFDiff paper's table (NMR ShapeNet test split, SPEC sections 3 and 5). "
+                     "Only SDFDiff's per-category values are known here; the NMR and SoftRas rows give "
+                     "their means only.")
+        if len(result.present) < len(NMR_CATEGORY_IDS):
+            notes.append(f"Our mean is over the {len(result.present)} categories evaluated; the reference means "
+                         "are over all 13.")
+        if result.split != "test":
+            notes.append(f"The reference rows are test-split numbers; this is the {result.split} split.")
+    else:
+        notes.append("Reference rows are shown for NMR ShapeNet only (the paper's benchmark).")
+    return notes
+
+
+def format_table(result: EvaluationResult) -> str:
+    """The markdown report: a title line, the table in the paper's layout (categories as columns,
+    mean last; reference rows for NMR ShapeNet), then the notes. Columns are padded for terminals."""
+    header, rows = table_rows(result)
+    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
+
+    def line(cells: Sequence[str]) -> str:
+        return "| " + " | ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))) + " |"
+
+    sep = "|" + "|".join(("-" * (w + 2)) if i == 0 else ("-" * (w + 1) + ":") for i, w in enumerate(widths)) + "|"
+    n_obj = len(np.unique(np.stack([result.category, result.object_index], 1), axis=0)) if len(result.iou) else 0
+    title = (f"3D IoU, {result.dataset}, split '{result.split}': {n_obj} objects x {result.views_per_object} views "
+             f"= {len(result.iou)} images; checkpoint {result.checkpoint or '(in memory)'} ({result.stage} stage)")
+    body = [line(header), sep] + [line(r) for r in rows]
+    return "\n".join([title, ""] + body + [""] + [f"- {n}" for n in table_notes(result)]) + "\n"
+
+
+def _json_safe(value):
+    """NaN/Inf (a category without images) -> null, so the file is strict JSON."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
+
+def _csv(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def write_report(result: EvaluationResult, output_dir: PathLike) -> dict[str, Path]:
+    """Writes ``table.md``, ``table.csv``, ``iou.json``, ``per_object.csv`` (worst first) and
+    ``per_image.csv`` into ``output_dir``, each atomically (temp file + ``os.replace``).
+
+    Returns:
+        {kind: path}. Raises ValueError naming ``output_dir`` when it cannot be written.
+    """
+    folder = ensure_output_dir(output_dir, "output_dir")
+    header, rows = table_rows(result)
+    files = {
+        "markdown": write_atomic(folder / "table.md", format_table(result)),
+        "csv": write_atomic(folder / "table.csv", _csv(header, rows)),
+        "json": write_atomic(folder / "iou.json", json.dumps(_json_safe(result.to_dict()), indent=2, allow_nan=False) + "\n"),
+    }
+    per_obj = result.per_object()
+    obj_header = ["category_id", "category", "object_index", "views", "iou_mean", "iou_min", "worst_view"] + (
+        ["iou_coarse_mean"] if result.iou_coarse is not None else [])
+    files["per_object"] = write_atomic(folder / "per_object.csv", _csv(
+        obj_header, [[r[k] if not isinstance(r[k], float) else f"{r[k]:.6f}" for k in obj_header] for r in per_obj]))
+    img_header = ["category_id", "category", "object_index", "view", "iou"] + (
+        ["iou_coarse"] if result.iou_coarse is not None else [])
+    img_rows = []
+    for i in range(len(result.iou)):
+        cid, name = result.categories[int(result.category[i])]
+        row = [cid, name, int(result.object_index[i]), int(result.view[i]), f"{result.iou[i]:.6f}"]
+        if result.iou_coarse is not None:
+            row.append(f"{result.iou_coarse[i]:.6f}")
+        img_rows.append(row)
+    files["per_image"] = write_atomic(folder / "per_image.csv", _csv(img_header, img_rows))
+    return files
+
+
+# ------------------------------------------------------------------------------------------------
+# Entry point
+
+CONFIG_DIR = str(Path(__file__).resolve().parents[1] / "configs")
+
+
+def run(cfg) -> EvaluationResult:
+    """The body of ``main``: a composed configs/eval.yaml -> evaluate, print, write."""
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.utils import instantiate
+    from omegaconf import OmegaConf
+
+    from .infer import load_model
+
+    split = str(cfg.get("split", "test"))
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    out = cfg.get("output_dir") or HydraConfig.get().runtime.output_dir
+    folder = ensure_output_dir(out, "output_dir")  # before the long run
+    datamodule = instantiate(cfg.data)
+    model = load_model(cfg.ckpt_path, cfg.get("device", "auto"))
+    views = cfg.get("views")
+    print(f"evaluating {model.checkpoint} ({model.stage} stage, {model.output_name} output) on {model.device}")
+    print(f"data: {describe_data(datamodule)}; split: {split}")
+    result = evaluate(model, datamodule, split,
+                      views=None if views is None else [int(v) for v in OmegaConf.to_container(views)],
+                      max_objects_per_category=cfg.get("max_objects_per_category"),
+                      batch_size=int(cfg.get("batch_size", 32)), num_workers=int(cfg.get("num_workers", 0)),
+                      compare_coarse=bool(cfg.get("compare_coarse", False)),
+                      protocol_workers=int(cfg.get("protocol_workers", 0)), progress=bool(cfg.get("progress", True)))
+    print()
+    print(format_table(result))
+    files = write_report(result, folder)
+    print(f"split '{result.split}': mean IoU {_fmt(result.mean)} over {len(result.present)} categories, "
+          f"{len(result.iou)} images, {result.seconds:.1f} s")
+    print("wrote " + ", ".join(str(p) for p in files.values()))
+    return result
+
+
+def main() -> None:
+    """``python -m svr.evaluate`` / ``sdfdiff-evaluate``: hydra reads configs/eval.yaml and the overrides."""
+    import hydra
+    from hydra.errors import InstantiationException
+    from omegaconf.errors import MissingMandatoryValue
+
+    @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
+    def _main(cfg) -> None:
+        try:
+            run(cfg)
+        except (ValueError, FileNotFoundError, OSError, MissingMandatoryValue, InstantiationException) as err:
+            sys.exit(f"sdfdiff-evaluate: error: {err}")
+
+    _main()
+
+
+if __name__ == "__main__":
+    main()
+
+
+__all__ = ["ReferenceRow", "PAPER_REFERENCE_ROWS", "EvaluationResult", "evaluate", "evaluate_objects",
+           "describe_data", "table_rows", "table_notes", "format_table", "write_report"]

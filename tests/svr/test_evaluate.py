@@ -1,0 +1,190 @@
+"""svr.evaluate: the benchmark table of a checkpoint from a tiny training run (printed and written),
+the paper's layout with reference rows for NMR ShapeNet, and clear errors.
+
+The checkpoint comes from ``svr.training.train`` on a two-category procedural dataset (a few
+seconds); ``tiny_run`` is shared with tests/svr/test_infer.py.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from svr.data.datamodule import ProceduralDataModule
+from svr.data.nmr import NMR_CATEGORIES
+from svr.evaluate import EvaluationResult, evaluate, format_table, main, table_rows, write_report
+from svr.infer import load_model, predict
+from svr.metrics import iou_protocol
+
+CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
+CATEGORIES = ("chair", "mug")
+# The data overrides of the tiny run, for train.yaml and eval.yaml alike (data group "procedural").
+DATA = {"categories": list(CATEGORIES), "train": 2, "val": 1, "test": 1, "supersample": 1}
+
+
+@dataclass(frozen=True)
+class TinyRun:
+    """A checkpoint of a tiny coarse -> refine training run and the data it was trained on."""
+
+    checkpoint: Path
+    cache_dir: Path
+
+    def datamodule(self) -> ProceduralDataModule:
+        return ProceduralDataModule(cache_dir=self.cache_dir, progress=False, **DATA)
+
+    def data_overrides(self) -> list[str]:
+        return [f"data.cache_dir={self.cache_dir}", f"data.categories=[{','.join(CATEGORIES)}]",
+                *(f"data.{k}={v}" for k, v in DATA.items() if k != "categories"), "data.progress=false"]
+
+
+_RUNS: dict[str, TinyRun] = {}
+
+
+def make_tiny_run(root: Path) -> TinyRun:
+    """Trains the tiny model (2 coarse + 2 refine steps) once per test session."""
+    if "run" in _RUNS:
+        return _RUNS["run"]
+    from hydra import compose, initialize_config_dir
+
+    from svr.training import train
+
+    cache = root / "cache"
+    overrides = [
+        "model=tiny", "data=procedural", "data.batch_size=2",
+        "stage.schedule=[coarse,refine]", "stage.coarse.max_steps=2", "stage.refine.max_steps=2",
+        "stage.refine.optimizer.lr=0.01",  # so the refined SDF differs from the coarse one
+        "loss.render_size=32", "trainer=cpu", "trainer.limit_val_batches=0", "trainer.enable_progress_bar=false",
+        "trainer.enable_model_summary=false", "callbacks.image_logger=null", "callbacks.progress_bar=null",
+        "callbacks.lr_monitor=null", "logger=csv",
+    ]
+    with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
+        cfg = compose("train", overrides=overrides + TinyRun(Path(), cache).data_overrides())
+    result = train(cfg, root / "run")
+    _RUNS["run"] = TinyRun(result.checkpoint("refine", "final"), cache)
+    return _RUNS["run"]
+
+
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory) -> TinyRun:
+    return make_tiny_run(tmp_path_factory.mktemp("tiny-run"))
+
+
+def run_main(entry, args: list[str], hydra_dir: Path, monkeypatch) -> None:
+    """Calls a hydra entry point in this process with command-line overrides."""
+    monkeypatch.setattr(sys, "argv", ["prog", *args, f"hydra.run.dir={hydra_dir}", "progress=false"])
+    entry()
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def test_main_prints_and_writes_the_table(tiny_run, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "eval"
+    run_main(main, [f"ckpt_path={tiny_run.checkpoint}", f"output_dir={out}", "compare_coarse=true",
+                    "batch_size=16", *tiny_run.data_overrides()], tmp_path / "hydra", monkeypatch)
+    printed = capsys.readouterr().out
+    assert "split: test" in printed and "split 'test'" in printed
+    header = next(line for line in printed.splitlines() if line.startswith("| method"))
+    assert [c.strip() for c in header.strip("|").split("|")] == ["method", "chair", "mug", "mean"]
+    assert "ours (refined)" in printed and "ours (coarse)" in printed
+    assert "(paper)" not in printed  # reference rows belong to NMR ShapeNet only
+
+    summary = json.loads((out / "iou.json").read_text())
+    assert summary["split"] == "test" and set(summary["categories"]) == set(CATEGORIES)
+    assert summary["mean"] == pytest.approx(np.mean(list(summary["categories"].values())))
+    assert summary["images"] == {"chair": 24, "mug": 24} and summary["full_protocol"]
+    assert set(summary["coarse"]["categories"]) == set(CATEGORIES)
+    assert f"{summary['mean']:.4f}" in printed
+    with open(out / "table.csv") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["method", "chair", "mug", "mean"] and rows[1][0] == "ours (refined)"
+    assert (out / "table.md").read_text().count("| ours") == 2
+    with open(out / "per_object.csv") as f:
+        objects = list(csv.DictReader(f))
+    assert len(objects) == 2 and {o["category"] for o in objects} == set(CATEGORIES)
+    assert float(objects[0]["iou_mean"]) <= float(objects[1]["iou_mean"])  # worst first
+    with open(out / "per_image.csv") as f:
+        images = list(csv.DictReader(f))
+    assert len(images) == 48 and sorted({int(r["view"]) for r in images}) == list(range(24))
+    assert not list(out.glob(".*.tmp"))  # atomic writes leave no temporary files
+
+
+def test_api_scores_every_view_by_the_protocol(tiny_run):
+    model = load_model(tiny_run.checkpoint, "cpu")
+    dm = tiny_run.datamodule()
+    res = evaluate(model, dm, "test", views=[3, 17], keep_voxels=True, progress=False)
+    assert len(res.iou) == 4 and not res.full_protocol and res.output == "refined"
+    assert "Thinned run" in format_table(res)
+    objects = dm.dataset("test")
+    for i in range(len(res.iou)):
+        obj = int(objects.offsets[res.category[i]]) + int(res.object_index[i])
+        image = objects.views(obj, [int(res.view[i])])
+        grid = predict(model, image)
+        expected = iou_protocol(grid.values, objects.voxels(obj)[None], -model.half_side, model.half_side)
+        assert res.iou[i] == pytest.approx(float(expected[0]), abs=1e-9)
+    assert res.voxels.shape == (4, 32, 32, 32) and res.voxels.dtype == bool
+
+
+def fake_result(category_ids: list[str], split: str = "test") -> EvaluationResult:
+    names = dict(NMR_CATEGORIES)
+    cats = tuple((c, names.get(c, c)) for c in category_ids)
+    n = len(cats)
+    return EvaluationResult(split=split, dataset="NMR ShapeNet (fake)", categories=cats,
+                            is_nmr_shapenet=all(c in names for c in category_ids), checkpoint="x.ckpt",
+                            stage="joint", output="refined", category=np.repeat(np.arange(n), 2),
+                            object_index=np.zeros(2 * n, dtype=np.int64), view=np.tile([0, 1], n),
+                            iou=np.linspace(0.2, 0.8, 2 * n))
+
+
+def test_nmr_table_has_the_paper_rows_in_the_paper_layout(tmp_path):
+    res = fake_result(["02691156", "03001627"])  # airplane, chair
+    header, rows = table_rows(res)
+    assert header == ["method", "airplane", "chair", "mean"]
+    by_method = {r[0]: r[1:] for r in rows}
+    assert by_method["SDFDiff (paper)"] == ["0.6874", "0.6436", "0.6674"]
+    assert by_method["NMR (paper)"] == ["", "", "0.6015"]
+    assert by_method["SoftRas, silhouettes (paper)"][-1] == "0.6234"
+    assert by_method["SoftRas, full (paper)"][-1] == "0.6464"
+    text = format_table(res)
+    assert "means only" in text and "all 13" in text
+    files = write_report(res, tmp_path / "out")
+    summary = json.loads(files["json"].read_text())
+    assert summary["reference"]["SDFDiff (paper)"]["categories"] == {"airplane": 0.6874, "chair": 0.6436}
+    assert "val split" in format_table(fake_result(["02691156"], split="val"))
+
+
+def test_every_nmr_category_gets_a_column_in_table_order():
+    res = fake_result([c for c, _ in NMR_CATEGORIES])
+    header, rows = table_rows(res)
+    assert header[1:-1] == [n for _, n in NMR_CATEGORIES] and header[-1] == "mean"
+    assert "all 13" not in format_table(res)
+
+
+def test_errors_name_the_file_or_argument(tiny_run, tmp_path, capsys, monkeypatch):
+    junk = tmp_path / "junk.ckpt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(SystemExit, match="junk.ckpt"):
+        run_main(main, [f"ckpt_path={junk}", f"output_dir={tmp_path / 'o1'}", *tiny_run.data_overrides()],
+                 tmp_path / "h1", monkeypatch)
+    other = tmp_path / "other.ckpt"
+    torch.save({"state_dict": {}}, other)
+    with pytest.raises(ValueError, match="other.ckpt"):
+        load_model(other, "cpu")
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(SystemExit, match="output_dir"):
+        run_main(main, [f"ckpt_path={tiny_run.checkpoint}", f"output_dir={blocker / 'sub'}",
+                        *tiny_run.data_overrides()], tmp_path / "h2", monkeypatch)
+    with pytest.raises(SystemExit, match="split"):
+        run_main(main, [f"ckpt_path={tiny_run.checkpoint}", "split=testing", f"output_dir={tmp_path / 'o3'}",
+                        *tiny_run.data_overrides()], tmp_path / "h3", monkeypatch)
+    with pytest.raises(ValueError, match="output_dir"):
+        write_report(fake_result(["02691156"]), blocker / "sub")
+    with pytest.raises(ValueError, match="split"):
+        evaluate(load_model(tiny_run.checkpoint, "cpu"), tiny_run.datamodule(), "testing")
