@@ -23,9 +23,6 @@ Python API (reused by drivers such as a demo, so there is one implementation of 
 """
 from __future__ import annotations
 
-import csv
-import io
-import json
 import logging
 import math
 import os
@@ -41,7 +38,7 @@ import numpy as np
 import torch
 
 from .data.nmr import NMR_CATEGORIES, NUM_VIEWS, SPLITS
-from .infer import ModelLike, as_model, ensure_output_dir, predict_sdf, write_atomic
+from .infer import ModelLike, as_model, ensure_output_dir, predict_sdf
 from .metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table, voxel_iou, voxels_protocol
 
 log = logging.getLogger(__name__)
@@ -420,54 +417,37 @@ def format_table(result: EvaluationResult) -> str:
     return "\n".join([title, ""] + body + [""] + [f"- {n}" for n in table_notes(result)]) + "\n"
 
 
-def _json_safe(value):
-    """NaN/Inf (a category without images) -> null, so the file is strict JSON."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    return value
-
-
-def _csv(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(header)
-    w.writerows(rows)
-    return buf.getvalue()
-
-
 def write_report(result: EvaluationResult, output_dir: PathLike) -> dict[str, Path]:
     """Writes ``table.md``, ``table.csv``, ``iou.json``, ``per_object.csv`` (worst first) and
-    ``per_image.csv`` into ``output_dir``, each atomically (temp file + ``os.replace``).
+    ``per_image.csv`` into ``output_dir``, each atomically (``mvr.outputs``: temp file + ``os.replace``;
+    non-finite numbers become JSON null).
 
     Returns:
         {kind: path}. Raises ValueError naming ``output_dir`` when it cannot be written.
     """
+    from mvr.outputs import write_csv, write_json, write_text
+
     folder = ensure_output_dir(output_dir, "output_dir")
     header, rows = table_rows(result)
     files = {
-        "markdown": write_atomic(folder / "table.md", format_table(result)),
-        "csv": write_atomic(folder / "table.csv", _csv(header, rows)),
-        "json": write_atomic(folder / "iou.json", json.dumps(_json_safe(result.to_dict()), indent=2, allow_nan=False) + "\n"),
+        "markdown": write_text(folder / "table.md", format_table(result)),
+        "csv": write_csv(folder / "table.csv", [dict(zip(header, r)) for r in rows], header),
+        "json": write_json(folder / "iou.json", result.to_dict()),
     }
-    per_obj = result.per_object()
-    obj_header = ["category_id", "category", "object_index", "views", "iou_mean", "iou_min", "worst_view"] + (
+    obj_columns = ["category_id", "category", "object_index", "views", "iou_mean", "iou_min", "worst_view"] + (
         ["iou_coarse_mean"] if result.iou_coarse is not None else [])
-    files["per_object"] = write_atomic(folder / "per_object.csv", _csv(
-        obj_header, [[r[k] if not isinstance(r[k], float) else f"{r[k]:.6f}" for k in obj_header] for r in per_obj]))
-    img_header = ["category_id", "category", "object_index", "view", "iou"] + (
+    files["per_object"] = write_csv(folder / "per_object.csv", result.per_object(), obj_columns)
+    img_columns = ["category_id", "category", "object_index", "view", "iou"] + (
         ["iou_coarse"] if result.iou_coarse is not None else [])
     img_rows = []
     for i in range(len(result.iou)):
         cid, name = result.categories[int(result.category[i])]
-        row = [cid, name, int(result.object_index[i]), int(result.view[i]), f"{result.iou[i]:.6f}"]
+        row = {"category_id": cid, "category": name, "object_index": int(result.object_index[i]),
+               "view": int(result.view[i]), "iou": float(result.iou[i])}
         if result.iou_coarse is not None:
-            row.append(f"{result.iou_coarse[i]:.6f}")
+            row["iou_coarse"] = float(result.iou_coarse[i])
         img_rows.append(row)
-    files["per_image"] = write_atomic(folder / "per_image.csv", _csv(img_header, img_rows))
+    files["per_image"] = write_csv(folder / "per_image.csv", img_rows, img_columns)
     return files
 
 

@@ -29,7 +29,6 @@ Python API (in-memory tensors)::
 """
 from __future__ import annotations
 
-import io
 import logging
 import os
 import sys
@@ -59,44 +58,7 @@ PREVIEW_SCENE = renderer.Scene(effects=("shading",), lights=(), camera_light=0.7
 
 
 # ------------------------------------------------------------------------------------------------
-# Files
-
-
-def _file_mode() -> int:
-    """The permissions an ordinary new file gets here (0o666 less the umask)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return 0o666 & ~mask
-
-
-def write_atomic(path: PathLike, data: Union[bytes, str]) -> Path:
-    """Writes ``data`` to ``path`` through a temporary file in the same folder and ``os.replace``:
-    a reader (or a killed process) never sees a partial file under the real name. The file gets
-    the usual permissions (not the private ones of a temporary file).
-
-    Raises:
-        OSError naming the file when it cannot be written.
-    """
-    target = Path(path)
-    payload = data.encode() if isinstance(data, str) else bytes(data)
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    except OSError as err:
-        raise OSError(err.errno, f"cannot write {target}: {err.strerror}") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, _file_mode())
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    return target
+# Files (each written atomically by mvr.outputs: temporary file beside it, then os.replace)
 
 
 def ensure_output_dir(path: PathLike, argument: str = "output_dir") -> Path:
@@ -490,7 +452,7 @@ def preview_picture(image: Optional[torch.Tensor], renders: Optional[torch.Tenso
     Args:
         image: (4, h, w) float RGBA in [0, 1] or None. renders: (K, S, S, 3) float in [0, 1] or None.
     Returns:
-        (S, width, 3) uint8.
+        (S, width, 3) float32 in [0, 1].
     """
     tiles = []
     size = renders.shape[1] if renders is not None and len(renders) else (image.shape[-1] if image is not None else 64)
@@ -507,7 +469,7 @@ def preview_picture(image: Optional[torch.Tensor], renders: Optional[torch.Tenso
     row = [tiles[0]]
     for t in tiles[1:]:
         row.extend([spacer, t])
-    return (torch.cat(row, dim=1).clamp(0, 1) * 255).round().to(torch.uint8).numpy()
+    return torch.cat(row, dim=1).clamp(0, 1).numpy()
 
 
 def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input_image: Optional[torch.Tensor] = None,
@@ -522,7 +484,7 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
     Returns:
         {format: path} of the files written.
     """
-    from PIL import Image
+    from mvr.outputs import write_mesh, write_npz, write_png
 
     bad = [f for f in formats if f not in OUTPUT_FORMATS]
     if bad:
@@ -530,20 +492,16 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
     folder = Path(out_dir)
     written: dict[str, Path] = {}
     if "npz" in formats:
-        buf = io.BytesIO()
         extra = {k: np.array(str(v)) for k, v in (meta or {}).items()}
-        np.savez_compressed(buf, values=rec.values.numpy().astype(np.float32),
-                            bbox_min=np.asarray(rec.bbox_min, np.float32), bbox_max=np.asarray(rec.bbox_max, np.float32),
-                            **extra)
-        written["npz"] = write_atomic(folder / f"{name}_sdf.npz", buf.getvalue())
+        written["npz"] = write_npz(folder / f"{name}_sdf.npz", values=rec.values.numpy().astype(np.float32),
+                                   bbox_min=np.asarray(rec.bbox_min, np.float32),
+                                   bbox_max=np.asarray(rec.bbox_max, np.float32), **extra)
     if len(rec.mesh.faces):
         for fmt in ("ply", "obj"):
             if fmt in formats:
-                written[fmt] = write_atomic(folder / f"{name}.{fmt}", rec.mesh.export(file_type=fmt))
+                written[fmt] = write_mesh(folder / f"{name}.{fmt}", rec.mesh)
     if "png" in formats:
-        buf = io.BytesIO()
-        Image.fromarray(preview_picture(input_image, rec.renders)).save(buf, format="PNG")
-        written["png"] = write_atomic(folder / f"{name}_views.png", buf.getvalue())
+        written["png"] = write_png(folder / f"{name}_views.png", preview_picture(input_image, rec.renders))
     return written
 
 
@@ -656,5 +614,5 @@ if __name__ == "__main__":
 
 __all__ = ["LoadedModel", "Reconstruction", "load_model", "as_model", "resolve_device", "check_images",
            "predict_sdf", "predict", "load_image", "find_images", "find_mask", "render_views", "reconstruct",
-           "preview_picture", "save_reconstruction", "infer_files", "write_atomic", "ensure_output_dir",
+           "preview_picture", "save_reconstruction", "infer_files", "ensure_output_dir",
            "DEFAULT_VIEWS", "OUTPUT_FORMATS", "PREVIEW_SCENE"]

@@ -1,0 +1,167 @@
+"""svr.infer: a dataset image through the command line gives the evaluation's prediction (voxel IoU
+1) as a watertight mesh; the in-memory API; RGB + mask and resizing; CPU/GPU checkpoints; errors."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+import trimesh
+from PIL import Image
+
+import renderer
+from svr.evaluate import evaluate
+from svr.geometry import voxelize_mesh_nmr
+from svr.infer import (check_images, infer_files, load_image, load_model, main, predict, predict_sdf,
+                       reconstruct, resolve_device)
+from svr.metrics import voxel_iou
+
+from .test_evaluate import run_main, tiny_run  # noqa: F401  (the shared tiny training run)
+
+
+def save_rgba(u8: np.ndarray, path) -> None:
+    """(4, H, W) uint8 -> an RGBA PNG."""
+    Image.fromarray(np.ascontiguousarray(u8.transpose(1, 2, 0)), "RGBA").save(path)
+
+
+def test_dataset_image_gives_the_evaluations_prediction_as_a_watertight_mesh(tiny_run, tmp_path, capsys,
+                                                                            monkeypatch):
+    model = load_model(tiny_run.checkpoint, "cpu")
+    dm = tiny_run.datamodule()
+    res = evaluate(model, dm, "test", views=[5, 11], keep_voxels=True, progress=False)
+    objects = dm.dataset("test")
+    cat, view = 1, 11  # the mug, view 11
+    obj = int(objects.offsets[cat])
+    save_rgba(objects.images_uint8(obj, [view])[0], tmp_path / "mug_v11.png")
+    save_rgba(objects.images_uint8(int(objects.offsets[0]), [5])[0], tmp_path / "chair_v5.png")
+
+    out = tmp_path / "out"
+    run_main(main, [f"ckpt_path={tiny_run.checkpoint}", f"images={tmp_path}", f"output_dir={out}", "device=cpu",
+                    "views=[0,12]", "render_size=32"], tmp_path / "hydra", monkeypatch)
+    printed = capsys.readouterr().out
+    assert "2 image(s)" in printed
+    for stem, c, v in (("mug_v11", cat, view), ("chair_v5", 0, 5)):
+        for suffix in ("_sdf.npz", ".ply", ".obj", "_views.png"):
+            assert (out / f"{stem}{suffix}").is_file(), f"{stem}{suffix} missing"
+        expected = res.voxels[res.index_of(c, 0, v)]
+        for ext in ("ply", "obj"):
+            mesh = trimesh.load(out / f"{stem}.{ext}", force="mesh", process=False)
+            assert mesh.is_watertight and len(mesh.faces) > 0
+            vox = voxelize_mesh_nmr(mesh.vertices, mesh.faces)
+            assert float(voxel_iou(vox, expected)[0]) == 1.0, f"{stem}.{ext}"
+        with np.load(out / f"{stem}_sdf.npz") as z:
+            values, lo, hi = z["values"], z["bbox_min"], z["bbox_max"]
+            assert str(z["stage"]) == "refine"
+        n = model.net.grid_resolution
+        assert values.shape == (n, n, n) and values.dtype == np.float32
+        assert np.allclose(lo, -model.half_side) and np.allclose(hi, model.half_side)
+        direct = predict(model, objects.views(int(objects.offsets[c]), [v])).values[0]
+        assert np.allclose(values, direct.numpy(), atol=1e-5)
+        png = Image.open(out / f"{stem}_views.png")
+        assert png.size[1] == 32 and png.size[0] > 4 * 32  # input, alpha, 2 renders
+    # The two inputs give different predictions (the file was not mixed up with another).
+    with np.load(out / "mug_v11_sdf.npz") as a, np.load(out / "chair_v5_sdf.npz") as b:
+        assert not np.array_equal(a["values"], b["values"])
+
+
+def test_in_memory_api(tiny_run):
+    model = load_model(tiny_run.checkpoint, "cpu")
+    images = tiny_run.datamodule().dataset("test").views(0, [0, 7, 13])
+    grid = predict(model, images, batch_size=2)
+    n = model.net.grid_resolution
+    assert isinstance(grid, renderer.SDFGrid) and grid.values.shape == (3, n, n, n)
+    assert torch.allclose(grid.values, predict(model, images).values, atol=1e-5)  # batching does not matter
+    both = predict_sdf(model, images)
+    assert both.refined is not None and torch.allclose(both.refined, grid.values, atol=1e-5)
+    assert not torch.allclose(both.coarse, both.refined)  # the tiny run trained the refiner
+    assert torch.allclose(predict(tiny_run.checkpoint, images[:1]).values, grid.values[:1], atol=1e-5)  # a path
+    assert torch.allclose(predict(model.net, images[:1]).values, grid.values[:1], atol=1e-5)  # a bare SVRNet
+    recs = reconstruct(model, images[:2], views=[0], render_size=24)
+    assert all(r.watertight for r in recs)
+    assert recs[0].renders.shape == (1, 24, 24, 3)
+    with pytest.raises(ValueError, match="images"):
+        check_images(torch.rand(2, 3, 64, 64))
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        predict(model, images * 255)
+
+
+def test_rgb_plus_mask_equals_rgba_and_other_sizes_are_resized(tiny_run, tmp_path):
+    u8 = tiny_run.datamodule().dataset("test").images_uint8(0, [3])[0]
+    save_rgba(u8, tmp_path / "a.png")
+    Image.fromarray(np.ascontiguousarray(u8[:3].transpose(1, 2, 0)), "RGB").save(tmp_path / "b.png")
+    Image.fromarray(u8[3]).save(tmp_path / "b_mask.png")
+    rgba = load_image(tmp_path / "a.png")
+    assert torch.equal(rgba, load_image(tmp_path / "b.png", tmp_path / "b_mask.png"))
+    big = Image.fromarray(np.ascontiguousarray(u8.transpose(1, 2, 0)), "RGBA").resize((128, 96))
+    big.save(tmp_path / "big.png")
+    with pytest.warns(UserWarning, match="resized to 64x64"):
+        x = load_image(tmp_path / "big.png")
+    assert x.shape == (4, 64, 64) and 0 <= float(x.min()) and float(x.max()) <= 1
+    # A folder: the mask is found beside its image and is not an input itself.
+    out = tmp_path / "out"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        files = infer_files(tiny_run.checkpoint, tmp_path, out, views=[], formats=["npz"])
+    assert len(files) == 3 and not (out / "b_mask_sdf.npz").exists()
+
+
+def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch):
+    junk = tmp_path / "junk.ckpt"
+    junk.write_bytes(b"\x80\x02 not a checkpoint")
+    with pytest.raises(ValueError, match="junk.ckpt"):
+        load_model(junk, "cpu")
+    truncated = tmp_path / "truncated.ckpt"
+    truncated.write_bytes(tiny_run.checkpoint.read_bytes()[:2000])
+    with pytest.raises(ValueError, match="truncated.ckpt"):
+        load_model(truncated, "cpu")
+    foreign = tmp_path / "foreign.ckpt"
+    torch.save({"state_dict": {"w": torch.zeros(1)}, "epoch": 0}, foreign)
+    with pytest.raises(ValueError, match="foreign.ckpt.*not an SDFDiff"):
+        load_model(foreign, "cpu")
+    with pytest.raises(FileNotFoundError, match="missing.ckpt"):
+        load_model(tmp_path / "missing.ckpt", "cpu")
+
+    bad = tmp_path / "bad.png"
+    bad.write_bytes(b"not an image")
+    with pytest.raises(ValueError, match="bad.png"):
+        load_image(bad)
+    with pytest.raises(FileNotFoundError, match="nothere.png"):
+        infer_files(tiny_run.checkpoint, [tmp_path / "nothere.png"], tmp_path / "o")
+    Image.new("RGB", (64, 64), "white").save(tmp_path / "rgb.png")
+    with pytest.raises(ValueError, match="rgb.png.*mask"):
+        load_image(tmp_path / "rgb.png")
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    with pytest.raises(ValueError, match="output_dir"):
+        infer_files(tiny_run.checkpoint, [bad], blocker / "sub")
+    with pytest.raises(SystemExit, match="bad.png"):
+        run_main(main, [f"ckpt_path={tiny_run.checkpoint}", f"images=[{bad}]", f"output_dir={tmp_path / 'o2'}"],
+                 tmp_path / "h1", monkeypatch)
+    with pytest.raises(SystemExit, match="junk.ckpt"):
+        run_main(main, [f"ckpt_path={junk}", f"images=[{bad}]", f"output_dir={tmp_path / 'o3'}"],
+                 tmp_path / "h2", monkeypatch)
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="device"):
+            resolve_device("cuda")
+    with pytest.raises(ValueError, match="device"):
+        resolve_device("tpu")
+
+
+@pytest.mark.cuda
+def test_checkpoints_move_between_cpu_and_gpu(tiny_run, tmp_path):
+    images = tiny_run.datamodule().dataset("test").views(0, [0, 9])
+    on_cpu = load_model(tiny_run.checkpoint, "cpu")
+    on_gpu = load_model(tiny_run.checkpoint, "cuda")
+    assert on_gpu.device.type == "cuda"
+    assert torch.allclose(predict(on_gpu, images).values.cpu(), predict(on_cpu, images).values, atol=1e-4)
+    # A checkpoint whose tensors were saved on the GPU loads on the CPU.
+    ckpt = torch.load(tiny_run.checkpoint, map_location="cuda", weights_only=True)
+    gpu_file = tmp_path / "gpu.ckpt"
+    torch.save(ckpt, gpu_file)
+    back = load_model(gpu_file, "cpu")
+    assert back.device.type == "cpu"
+    assert torch.equal(predict(back, images).values, predict(on_cpu, images).values)
+    recs = reconstruct(on_gpu, images[:1], views=[0], render_size=24)
+    assert recs[0].watertight and recs[0].values.device.type == "cpu"
