@@ -361,17 +361,38 @@ def _fmt(x: Optional[float]) -> str:
     return "" if x is None or not math.isfinite(x) else f"{x:.4f}"
 
 
-def table_rows(result: EvaluationResult) -> tuple[list[str], list[list[str]]]:
+ExtraRows = Optional[Mapping[str, IoUTable]]
+
+
+def _check_extra(extra_rows: ExtraRows) -> dict[str, IoUTable]:
+    out = dict(extra_rows or {})
+    for label, t in out.items():
+        if not isinstance(t, IoUTable):
+            raise TypeError(f"extra_rows[{label!r}] must be a svr.metrics.IoUTable, got {type(t).__name__}")
+    return out
+
+
+def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
+               label: Optional[str] = None) -> tuple[list[str], list[list[str]]]:
     """The paper's layout as strings: header ``["method", <category names>..., "mean"]`` and rows
-    (ours, ours coarse, the image counts, then the reference rows for NMR ShapeNet; blank cells
-    where a value is not known)."""
+    (ours, ours coarse, the ``extra_rows``, the image counts, then the reference rows for NMR
+    ShapeNet; blank cells where a value is not known).
+
+    Args:
+        extra_rows: more methods scored on the same images (e.g. a demo's baselines): label ->
+            IoUTable (``svr.metrics.iou_table``), matched to the columns by category id.
+        label: the main row's label (default "ours (<output>)").
+    """
     cols = result.present
     table = result.table
     header = ["method"] + [table.rows[c].name for c in cols] + ["mean"]
-    rows = [[f"ours ({result.output})"] + [_fmt(table.rows[c].iou) for c in cols] + [_fmt(table.mean)]]
+    rows = [[label or f"ours ({result.output})"] + [_fmt(table.rows[c].iou) for c in cols] + [_fmt(table.mean)]]
     coarse = result.coarse_table
     if coarse is not None:
         rows.append(["ours (coarse)"] + [_fmt(coarse.rows[c].iou) for c in cols] + [_fmt(coarse.mean)])
+    for name, extra in _check_extra(extra_rows).items():
+        by_id = {r.category_id: r.iou for r in extra.rows}
+        rows.append([name] + [_fmt(by_id.get(table.rows[c].category_id)) for c in cols] + [_fmt(extra.mean)])
     rows.append(["images"] + [str(table.rows[c].images) for c in cols] + [str(len(result.iou))])
     if result.is_nmr_shapenet:
         for ref in PAPER_REFERENCE_ROWS:
@@ -400,10 +421,11 @@ def table_notes(result: EvaluationResult) -> list[str]:
     return notes
 
 
-def format_table(result: EvaluationResult) -> str:
+def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: Optional[str] = None) -> str:
     """The markdown report: a title line, the table in the paper's layout (categories as columns,
-    mean last; reference rows for NMR ShapeNet), then the notes. Columns are padded for terminals."""
-    header, rows = table_rows(result)
+    mean last; reference rows for NMR ShapeNet), then the notes. Columns are padded for terminals.
+    ``extra_rows`` and ``label``: see ``table_rows``."""
+    header, rows = table_rows(result, extra_rows, label)
     widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
 
     def line(cells: Sequence[str]) -> str:
@@ -417,10 +439,12 @@ def format_table(result: EvaluationResult) -> str:
     return "\n".join([title, ""] + body + [""] + [f"- {n}" for n in table_notes(result)]) + "\n"
 
 
-def write_report(result: EvaluationResult, output_dir: PathLike) -> dict[str, Path]:
+def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: ExtraRows = None,
+                 label: Optional[str] = None) -> dict[str, Path]:
     """Writes ``table.md``, ``table.csv``, ``iou.json``, ``per_object.csv`` (worst first) and
     ``per_image.csv`` into ``output_dir``, each atomically (``mvr.outputs``: temp file + ``os.replace``;
-    non-finite numbers become JSON null).
+    non-finite numbers become JSON null). ``extra_rows`` (see ``table_rows``) also go into the JSON
+    under ``"extra"``.
 
     Returns:
         {kind: path}. Raises ValueError naming ``output_dir`` when it cannot be written.
@@ -428,11 +452,16 @@ def write_report(result: EvaluationResult, output_dir: PathLike) -> dict[str, Pa
     from mvr.outputs import write_csv, write_json, write_text
 
     folder = ensure_output_dir(output_dir, "output_dir")
-    header, rows = table_rows(result)
+    header, rows = table_rows(result, extra_rows, label)
+    summary = result.to_dict()
+    extra = _check_extra(extra_rows)
+    if extra:
+        summary["extra"] = {name: {"categories": {r.name: r.iou for r in t.rows if r.images > 0}, "mean": t.mean}
+                            for name, t in extra.items()}
     files = {
-        "markdown": write_text(folder / "table.md", format_table(result)),
+        "markdown": write_text(folder / "table.md", format_table(result, extra_rows, label)),
         "csv": write_csv(folder / "table.csv", [dict(zip(header, r)) for r in rows], header),
-        "json": write_json(folder / "iou.json", result.to_dict()),
+        "json": write_json(folder / "iou.json", summary),
     }
     obj_columns = ["category_id", "category", "object_index", "views", "iou_mean", "iou_min", "worst_view"] + (
         ["iou_coarse_mean"] if result.iou_coarse is not None else [])

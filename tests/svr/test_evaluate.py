@@ -20,7 +20,7 @@ from svr.data.datamodule import ProceduralDataModule
 from svr.data.nmr import NMR_CATEGORIES
 from svr.evaluate import EvaluationResult, evaluate, format_table, main, table_rows, write_report
 from svr.infer import load_model, predict
-from svr.metrics import iou_protocol
+from svr.metrics import iou_protocol, iou_table
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
 CATEGORIES = ("chair", "mug")
@@ -157,6 +157,19 @@ def test_nmr_table_has_the_paper_rows_in_the_paper_layout(tmp_path):
     summary = json.loads(files["json"].read_text())
     assert summary["reference"]["SDFDiff (paper)"]["categories"] == {"airplane": 0.6874, "chair": 0.6436}
     assert "val split" in format_table(fake_result(["02691156"], split="val"))
+
+
+def test_extra_rows_share_the_table(tmp_path):
+    """Drivers (e.g. a demo's baselines) add rows to the one table implementation."""
+    res = fake_result(["02691156", "03001627"])
+    baseline = iou_table(np.array([0.1, 0.3]), np.array([1, 1]), res.categories)  # chair only
+    header, rows = table_rows(res, {"mean shape": baseline}, label="SDFDiff (ours)")
+    assert rows[0][0] == "SDFDiff (ours)"
+    assert ["mean shape", "", "0.2000", "0.2000"] in rows
+    files = write_report(res, tmp_path, {"mean shape": baseline})
+    assert json.loads(files["json"].read_text())["extra"]["mean shape"] == {"categories": {"chair": 0.2}, "mean": 0.2}
+    with pytest.raises(TypeError, match="extra_rows"):
+        table_rows(res, {"x": {"chair": 0.1}})
 
 
 def test_every_nmr_category_gets_a_column_in_table_order():
