@@ -104,7 +104,8 @@ def _params(grid: SDFGrid, settings: TraceSettings) -> tuple[torch.Tensor, torch
     params = torch.cat([lo, hi, grid.voxel_size, (lo + hi) / 2, res - 1, res - 2, consts]).contiguous()
     iparams = torch.tensor([*grid.resolution, settings.max_steps, settings.inner_steps, int(fixed)],
                            dtype=torch.int64, device=dev)
-    assert params.numel() == march_module.N_PARAMS and iparams.numel() == march_module.N_IPARAMS
+    if params.numel() != march_module.N_PARAMS or iparams.numel() != march_module.N_IPARAMS:
+        raise RuntimeError("renderer/kernels: the parameter layout and raymarch.py disagree")
     return params, iparams
 
 

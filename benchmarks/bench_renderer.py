@@ -1,0 +1,293 @@
+"""Renderer speed: the PyTorch reference march against the fused kernel, alone and inside a full
+differentiable render (forward + backward), in one run.
+
+    python benchmarks/bench_renderer.py            # full run, writes docs/bench_renderer.md
+    python benchmarks/bench_renderer.py --quick    # fewer repeats (a smoke run)
+
+Scenes: B grids of 64^3 (a torus, its radii varied a little per grid), one camera per grid at
+distance 2.5 from a random direction, 40 degree field of view (the torus fills part of the
+image), the default ``renderer.Scene()`` (silhouette, depth, normals, Lambert shading). Configs:
+64^2 with B = 32, then 128^2 and 256^2 with B = 8.
+
+What is timed (medians over the repeats, after one warm-up that also loads the compiled kernels):
+- march: ``renderer.sphere_trace`` (ray generation + the no-gradient march) per backend;
+- render f+b: ``renderer.render`` + a scalar loss over image, silhouette and depth + ``backward()``
+  into the grid values, once with each march.
+
+Memory: each (config, march) runs once more in a fresh subprocess that builds the scene, warms up
+on a tiny image, resets the kernel's peak-RSS counter (``/proc/self/clear_refs``), runs one
+forward + backward and reports ``VmHWM - VmRSS before``: the peak extra resident memory of that
+forward + backward (torch CPU tensors, numba buffers and all), in MiB. Where clear_refs is not
+available it falls back to the growth of ``ru_maxrss``, which can under-report.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import torch  # noqa: E402
+
+import renderer  # noqa: E402
+import renderer.kernels  # noqa: E402
+from renderer import Cameras, Scene, SDFGrid, render, sphere_trace  # noqa: E402
+
+
+@dataclass(frozen=True)
+class Config:
+    """One benchmark case: B grids of ``grid``^3, one ``image``^2 camera each."""
+
+    image: int
+    batch: int
+    grid: int = 64
+
+    @property
+    def name(self) -> str:
+        return f"{self.image}^2, B={self.batch}"
+
+    @property
+    def rays(self) -> int:
+        return self.image * self.image * self.batch
+
+
+CONFIGS = (Config(64, 32), Config(128, 8), Config(256, 8))
+MARCHES = ("reference", "cpu")
+
+
+def torus_grids(batch: int, n: int, seed: int = 0) -> torch.Tensor:
+    """(batch, n, n, n) float32 torus SDFs over [-1, 1]^3 (ring in the xz plane), radii varied per grid."""
+    gen = torch.Generator().manual_seed(seed)
+    axis = torch.linspace(-1.0, 1.0, n)
+    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
+    big = 0.5 + 0.1 * torch.rand(batch, generator=gen)
+    small = 0.15 + 0.1 * torch.rand(batch, generator=gen)
+    ring = torch.sqrt(x * x + z * z)[None] - big[:, None, None, None]
+    return torch.sqrt(ring * ring + (y * y)[None]) - small[:, None, None, None]
+
+
+def scene_for(cfg: Config, seed: int = 0) -> tuple[torch.Tensor, Cameras]:
+    """Grid values (B, N, N, N) and B cameras at distance 2.5 looking at the origin."""
+    gen = torch.Generator().manual_seed(seed + 1)
+    eyes = torch.randn(cfg.batch, 3, generator=gen, dtype=torch.float64)
+    eyes = 2.5 * eyes / eyes.norm(dim=-1, keepdim=True)
+    ups = torch.where(eyes[:, 1:2].abs() > 2.4, torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64),
+                      torch.tensor([[0.0, 1.0, 0.0]], dtype=torch.float64))
+    cams = Cameras.look_at(eyes, up=ups, fov_deg=40.0, image_size=cfg.image)
+    return torus_grids(cfg.batch, cfg.grid, seed), cams
+
+
+def forward_backward(values: torch.Tensor, cams: Cameras, backend: str) -> None:
+    """One differentiable render of every camera and the backward pass into the grid values."""
+    v = values.detach().requires_grad_(True)
+    out = render(SDFGrid(v), cams, Scene(), backend=backend)
+    loss = out.image.mean() + out.silhouette.mean() + out.depth.mean()
+    loss.backward()
+
+
+def median_times_ms(fns: dict, repeats: int) -> dict[str, float]:
+    """Median wall time and CPU time (ms) of each function: ``name`` and ``name_cpu``.
+
+    One warm-up each (compiles or loads the kernels, fills the allocator), then the functions take
+    turns so that a change of the machine's load hits all of them alike. CPU time is this
+    process's user + system time over all its threads (torch's and numba's).
+    """
+    for fn in fns.values():
+        fn()
+    wall: dict[str, list[float]] = {name: [] for name in fns}
+    cpu: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            start, start_cpu = time.perf_counter(), time.process_time()
+            fn()
+            wall[name].append(time.perf_counter() - start)
+            cpu[name].append(time.process_time() - start_cpu)
+    out = {name: 1e3 * statistics.median(t) for name, t in wall.items()}
+    out.update({f"{name}_cpu": 1e3 * statistics.median(t) for name, t in cpu.items()})
+    return out
+
+
+def time_config(cfg: Config, repeats: int) -> dict[str, float]:
+    values, cams = scene_for(cfg)
+    grid = SDFGrid(values)
+    fns = {}
+    for backend in MARCHES:
+        fns[f"march_{backend}"] = lambda backend=backend: sphere_trace(grid, cams, backend=backend)
+        fns[f"render_{backend}"] = lambda backend=backend: forward_backward(values, cams, backend)
+    row = median_times_ms(fns, repeats)
+    trace = sphere_trace(grid, cams, backend="cpu")
+    row["hit_fraction"] = float(trace.hit.float().mean())
+    row["mean_steps"] = float(trace.steps.float().mean())
+    return row
+
+
+# ---------------------------------------------------------------------------- memory (subprocess)
+def _status_kib(field: str) -> int:
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith(field + ":"):
+                return int(line.split()[1])
+    raise KeyError(field)
+
+
+def measure_memory(cfg: Config, backend: str) -> dict[str, float | str]:
+    """Peak extra resident memory (MiB) of one forward + backward, in this (fresh) process."""
+    import gc
+    import resource
+
+    values, cams = scene_for(cfg)
+    forward_backward(values[:1].clone(), Cameras.look_at([[0.0, 0.0, 2.5]], image_size=8), backend)
+    gc.collect()
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")  # resets VmHWM to the current RSS
+        before = _status_kib("VmRSS")
+        forward_backward(values, cams, backend)
+        peak = _status_kib("VmHWM")
+        method = "VmHWM"
+    except OSError:
+        before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        forward_backward(values, cams, backend)
+        peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+        method = "ru_maxrss"
+    return {"peak_mib": (peak - before) / 1024.0, "method": method}
+
+
+def memory_in_subprocess(cfg: Config, backend: str, threads: int | None) -> dict[str, float | str]:
+    cmd = [sys.executable, __file__, "--memory-probe", f"{cfg.image},{cfg.batch},{cfg.grid}", backend]
+    if threads:
+        cmd += ["--threads", str(threads)]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=ROOT)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+# ---------------------------------------------------------------------------- report
+def table(rows: list[tuple[Config, dict]]) -> str:
+    """The wall-clock table (medians), with speed-ups and peak memory."""
+    head = ("| config | rays | hits | march ref (ms) | march fused (ms) | march speed-up | fused rays/s "
+            "| f+b with ref march (ms) | f+b with fused march (ms) | f+b speed-up "
+            "| peak mem f+b ref (MiB) | peak mem f+b fused (MiB) |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for cfg, r in rows:
+        lines.append(
+            f"| {cfg.name} | {cfg.rays} | {100 * r['hit_fraction']:.0f}% | {r['march_reference']:.1f} "
+            f"| {r['march_cpu']:.1f} | {r['march_reference'] / r['march_cpu']:.1f}x "
+            f"| {cfg.rays / (r['march_cpu'] / 1e3):.3g} | {r['render_reference']:.1f} | {r['render_cpu']:.1f} "
+            f"| {r['render_reference'] / r['render_cpu']:.1f}x | {r['mem_reference']:.0f} | {r['mem_cpu']:.0f} |")
+    return "\n".join(lines)
+
+
+def cpu_table(rows: list[tuple[Config, dict]]) -> str:
+    """The same runs in CPU time (all threads of the process; medians): less sensitive to a busy
+    machine than wall time, but blind to how well the work spreads over the cores."""
+    head = ("| config | march ref (CPU ms) | march fused (CPU ms) | ratio | f+b with ref march (CPU ms) "
+            "| f+b with fused march (CPU ms) | ratio |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for cfg, r in rows:
+        lines.append(
+            f"| {cfg.name} | {r['march_reference_cpu']:.1f} | {r['march_cpu_cpu']:.1f} "
+            f"| {r['march_reference_cpu'] / r['march_cpu_cpu']:.1f}x | {r['render_reference_cpu']:.1f} "
+            f"| {r['render_cpu_cpu']:.1f} | {r['render_reference_cpu'] / r['render_cpu_cpu']:.1f}x |")
+    return "\n".join(lines)
+
+
+def machine() -> str:
+    import numba
+
+    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
+            f"torch {torch.__version__} ({torch.get_num_threads()} threads), numba {numba.__version__} "
+            f"({numba.get_num_threads()} threads), Python {platform.python_version()}")
+
+
+def write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="one timed repeat per measurement")
+    parser.add_argument("--repeats", type=int, default=None, help="timed repeats per measurement (default 5)")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "bench_renderer.md",
+                        help="markdown file for the table (default docs/bench_renderer.md)")
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--threads", type=int, default=None, help="torch and numba threads (default: all)")
+    parser.add_argument("--memory-probe", nargs=2, metavar=("IMAGE,BATCH,GRID", "BACKEND"), help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.repeats is not None and args.repeats < 1:
+        raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
+    if args.threads is not None:
+        if args.threads < 1:
+            raise ValueError(f"--threads must be at least 1, got {args.threads}")
+        import numba
+
+        torch.set_num_threads(args.threads)
+        numba.set_num_threads(args.threads)
+    if args.memory_probe:
+        image, batch, grid = (int(x) for x in args.memory_probe[0].split(","))
+        print(json.dumps(measure_memory(Config(image, batch, grid), args.memory_probe[1])))
+        return
+    ok, why = renderer.kernels.available("cpu")
+    if not ok:
+        raise SystemExit(f"the fused CPU march is unavailable: {why}")
+    repeats = args.repeats or (1 if args.quick else 5)
+    load_before = os.getloadavg()
+    rows = []
+    for cfg in CONFIGS:
+        print(f"timing {cfg.name} ...", file=sys.stderr, flush=True)
+        row = time_config(cfg, repeats)
+        for backend in MARCHES:
+            mem = memory_in_subprocess(cfg, backend, args.threads)
+            row[f"mem_{backend}"] = float(mem["peak_mib"])
+            row["mem_method"] = mem["method"]
+        rows.append((cfg, row))
+    load_after = os.getloadavg()
+    text = table(rows)
+    text_cpu = cpu_table(rows)
+    print(text + "\n\n" + text_cpu)
+    print(f"load average (1 min) before/after: {load_before[0]:.1f} / {load_after[0]:.1f}", file=sys.stderr)
+    if not args.no_write:
+        method = rows[0][1]["mem_method"]
+        doc = (
+            "# Renderer benchmark\n\n"
+            "Made by `python benchmarks/bench_renderer.py` (medians of "
+            f"{repeats} timed run{'s' if repeats > 1 else ''} after a warm-up; see the script's docstring "
+            "for the scenes).\n\n"
+            f"Machine: {machine()}; 1-minute load average {load_before[0]:.1f} before the run and "
+            f"{load_after[0]:.1f} after it (the machine is shared: a load above its CPU count slows the "
+            "reference march, a long chain of small PyTorch ops, more than the fused kernel).\n\n"
+            + text + "\n\n"
+            "CPU time of the same calls (user + system, all threads of the process):\n\n"
+            + text_cpu + "\n\n"
+            "- march: `renderer.sphere_trace` (rays + the no-gradient march); ref = the vectorised-PyTorch "
+            "reference (renderer/reference.py), fused = the numba CPU kernel (renderer/kernels/).\n"
+            "- f+b: `renderer.render` with the default Scene plus `backward()` into the grid values; the "
+            "stage-2 (PyTorch) part is the same code in both columns.\n"
+            f"- peak mem: the peak extra resident memory of one forward + backward in a fresh process "
+            f"({method}; see the script's docstring).\n"
+        )
+        write_atomic(args.out, doc)
+        print(f"wrote {args.out}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
