@@ -181,8 +181,7 @@ class SDFGrid:
         hi = stencil.index_select(1, tables["hi"]).view(-1, 8, 3)  # per corner and axis
         lo = stencil.index_select(1, tables["lo"]).view(-1, 8, 3)
         comps = (hi - lo) / span  # (K, 8, 3): the central differences at each corner
-        wx, wy, wz = torch.stack([1 - w, w], dim=-1).unbind(1)  # (K, 2): weights of bit 0 and bit 1
-        weight = (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(k, 8, 1)
+        weight = _corner_weights(w)[:, :, None]
         grad = torch.zeros(k, 3, dtype=dt, device=dev)
         for term in (weight * comps).unbind(1):  # summed corner by corner, in a fixed order
             grad = grad + term
@@ -224,16 +223,14 @@ class SDFGrid:
         base = self._flat_index(b, i0[:, 0], i0[:, 1], i0[:, 2])
         offsets = (_CORNER_BITS.to(points.device) * torch.tensor(
             [self.resolution[1] * self.resolution[2], self.resolution[2], 1], device=points.device)).sum(-1)
-        # The 8 corners in one gather, ordered c000, c001, c010, ..., c111 (bits x, y, z), then
-        # halved along z, y, x (unbind rather than strided slices: cheaper in backward).
-        c = self._gather(base[:, None] + offsets)  # (R, 8)
-        wx, wy, wz = w.unbind(1)
-        c0, c1 = c.view(-1, 4, 2).unbind(-1)
-        c = c0 + (c1 - c0) * wz[:, None]  # c00, c01, c10, c11
-        c0, c1 = c.view(-1, 2, 2).unbind(-1)
-        c = c0 + (c1 - c0) * wy[:, None]  # c0, c1
-        c0, c1 = c.unbind(-1)
-        return c0 + (c1 - c0) * wx
+        # The 8 corners in one gather, ordered c000, c001, c010, ..., c111 (bits x, y, z).
+        corners = base[:, None] + offsets  # (R, 8)
+        if w.requires_grad or not (torch.is_grad_enabled() and self.values.requires_grad):
+            return _lerp_corners(self._gather(corners), w)
+        # Fixed points (the traced ones): a backward for the values alone, one pass.
+        shared = getattr(self, "_shared", None)
+        source, sink = shared if shared is not None else (self.values.reshape(-1), None)
+        return _TrilinearAtFixedPoints.apply(source, corners, w, sink)
 
     def _gather(self, index: torch.Tensor) -> torch.Tensor:
         """The flat grid values at a long index of any shape, differentiable w.r.t. the values.
@@ -329,6 +326,48 @@ def _stencil_tables(device: torch.device, resolution: tuple[int, int, int]) -> d
         offsets = ((_STENCIL["positions"] - 1) * strides).sum(-1)
         _STENCIL_ON[key] = {**{k: v.to(device) for k, v in _STENCIL.items()}, "offsets": offsets.to(device)}
     return _STENCIL_ON[key]
+
+
+def _lerp_corners(c: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+    """Trilinear interpolation of corner values c (R, 8) (order c000, c001, ..., c111) with
+    fractions w (R, 3): halved along z, y, x (unbind rather than strided slices: cheaper in backward)."""
+    wx, wy, wz = w.unbind(1)
+    c0, c1 = c.view(-1, 4, 2).unbind(-1)
+    c = c0 + (c1 - c0) * wz[:, None]  # c00, c01, c10, c11
+    c0, c1 = c.view(-1, 2, 2).unbind(-1)
+    c = c0 + (c1 - c0) * wy[:, None]  # c0, c1
+    c0, c1 = c.unbind(-1)
+    return c0 + (c1 - c0) * wx
+
+
+def _corner_weights(w: torch.Tensor) -> torch.Tensor:
+    """(R, 8) trilinear weights of the corners (order c000, ..., c111) for fractions w (R, 3)."""
+    wx, wy, wz = torch.stack([1 - w, w], dim=-1).unbind(1)  # (R, 2): weights of bit 0 and bit 1
+    return (wx[:, :, None, None] * wy[:, None, :, None] * wz[:, None, None, :]).reshape(-1, 8)
+
+
+class _TrilinearAtFixedPoints(torch.autograd.Function):
+    """Trilinear samples at points that carry no gradient: the forward of ``_lerp_corners``, and a
+    backward for the grid values alone (weights times the incoming gradient, one scatter) instead
+    of autograd's walk back through every interpolation step."""
+
+    @staticmethod
+    def forward(ctx, source: torch.Tensor, corners: torch.Tensor, w: torch.Tensor, sink) -> torch.Tensor:
+        ctx.save_for_backward(corners, w)
+        ctx.sink, ctx.numel = sink, source.shape[0]
+        return _lerp_corners(source.index_select(0, corners.reshape(-1)).view(corners.shape), w)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: torch.Tensor):
+        corners, w = ctx.saved_tensors
+        contrib = (grad[:, None] * _corner_weights(w)).reshape(-1)
+        index = corners.reshape(-1)
+        if ctx.sink is not None:
+            ctx.sink.add(index, contrib, ctx.numel)
+            return None, None, None, None
+        full = torch.zeros(ctx.numel, dtype=grad.dtype, device=grad.device)
+        return full.index_add_(0, index, contrib), None, None, None
 
 
 class _GradientSink:

@@ -565,3 +565,23 @@ def test_shared_gradient_buffer_gives_the_plain_gradients():
     assert frozen._with_shared_gradient() is frozen
     with torch.no_grad():
         assert SDFGrid(v)._with_shared_gradient().values is v
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_sampling_at_fixed_points_has_the_autograd_gradient(dtype):
+    """Samples at points without gradient use a one-pass backward for the values: it must agree
+    with autograd's walk through the interpolation (points with gradient take that path)."""
+    values = random_smooth_values(2, (6, 9, 7), seed=4, dtype=dtype)
+    gen = torch.Generator().manual_seed(1)
+    pts = (torch.rand(500, 3, generator=gen, dtype=torch.float64) * 2.4 - 1.2).to(dtype)
+    b = torch.randint(0, 2, (500,), generator=gen)
+    grads = []
+    for track_points in (False, True):
+        v = values.clone().requires_grad_(True)
+        p = pts.clone().requires_grad_(track_points)
+        f = SDFGrid(v).sample(p, b)
+        (f * torch.linspace(-1.0, 2.0, 500, dtype=dtype)).sum().backward()
+        grads.append((f.detach(), v.grad))
+    assert torch.equal(grads[0][0], grads[1][0])
+    tol = dict(rtol=1e-5, atol=1e-5) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(grads[0][1], grads[1][1], **tol)
