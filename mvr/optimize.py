@@ -28,6 +28,7 @@ class OptimSettings:
 
     Attributes:
         lr: Adam's learning rate in voxels of the current level (the step is ``lr * voxel size``).
+        lr_decay: factor applied to the learning rate after every pass (1: constant).
         betas, eps: Adam's other parameters.
         image_weight, silhouette_weight, eikonal_weight, laplacian_weight: weights of the energy's
             terms (see mvr.losses); the silhouette and Laplacian terms are off in the paper.
@@ -45,16 +46,17 @@ class OptimSettings:
             ``fill_cavities``; not in the paper).
     """
 
-    lr: float = 0.1
+    lr: float = 0.05
+    lr_decay: float = 0.8
     betas: tuple[float, float] = (0.9, 0.999)
-    eps: float = 1e-8
+    eps: float = 1e-5
     image_weight: float = 1.0
     silhouette_weight: float = 1.0
     eikonal_weight: float = 0.01
-    laplacian_weight: float = 0.0
+    laplacian_weight: float = 0.01
     hard_view_updates: int = 20
     easy_view_updates: int = 5
-    max_passes: PerLevel = 20
+    max_passes: PerLevel = 10
     min_passes: int = 2
     loss_tol: float = 0.0
     rel_tol: float = 0.01
@@ -67,6 +69,8 @@ class OptimSettings:
     def __post_init__(self) -> None:
         if not self.lr > 0:
             raise ValueError(f"lr must be positive, got {self.lr!r}")
+        if not 0 < self.lr_decay <= 1:
+            raise ValueError(f"lr_decay must lie in (0, 1], got {self.lr_decay!r}")
         betas = tuple(float(b) for b in self.betas)
         if len(betas) != 2 or not all(0 <= b < 1 for b in betas):
             raise ValueError(f"betas must be two numbers in [0, 1), got {self.betas!r}")
@@ -271,6 +275,8 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, settings: OptimSettings, l
                     timed_out = True
                     break
             updates += pass_updates
+            for group in opt.param_groups:
+                group["lr"] *= settings.lr_decay
             if settings.fill_cavities:
                 with torch.no_grad():
                     values.copy_(fill_cavities(values[0]).unsqueeze(0))

@@ -165,8 +165,18 @@ def perturbed_cameras(cameras: Cameras, offsets: torch.Tensor) -> Cameras:
                            image_size=cameras.image_size, dtype=cameras.dtype)
 
 
-def _comparison_image(targets: torch.Tensor, renders: torch.Tensor) -> np.ndarray:
-    """Rows target / render / |difference| of (K, H, W, C) images, as one (3H, K W, 3) array."""
+def _comparison_image(targets: torch.Tensor, renders: torch.Tensor, margin: int = 4) -> np.ndarray:
+    """Rows target / render / |difference| of (K, H, W, C) images, as one (3h, K w, 3) array,
+    cropped to the pixels where either image differs from its corner pixel (the background)."""
+    background = targets[:, :1, :1, :]
+    busy = ((targets - background).abs().amax(dim=(0, 3)) > 0) | ((renders - background).abs().amax(dim=(0, 3)) > 0)
+    rows, cols = torch.nonzero(busy, as_tuple=True)
+    if rows.numel():
+        h, w = busy.shape
+        r0, r1 = max(int(rows.min()) - margin, 0), min(int(rows.max()) + margin + 1, h)
+        c0, c1 = max(int(cols.min()) - margin, 0), min(int(cols.max()) + margin + 1, w)
+        targets, renders = targets[:, r0:r1, c0:c1], renders[:, r0:r1, c0:c1]
+
     def row(x: torch.Tensor) -> np.ndarray:
         x = x.detach().float()
         if x.shape[-1] == 1:

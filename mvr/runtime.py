@@ -9,6 +9,9 @@ Two measured effects on the shared 2-core machines this project runs on:
   gradient buffers, page-faults them in again; under this VM that took ~0.5-1 s per render of a
   64^3 grid. Raising glibc's mmap and trim thresholds (``mallopt``) keeps freed memory in the heap
   for reuse: ~50 ms instead.
+* Denormal floats: Adam's second moments of the tiny gradients that far-away grid values receive
+  underflow into denormals, which x86 CPUs process ~100x slower; flushing them to zero (FTZ/DAZ,
+  ``torch.set_flush_denormal``) made an update at 64^3 about twice as fast when measured.
 """
 from __future__ import annotations
 
@@ -40,11 +43,12 @@ def tune_allocator(mmap_threshold: int = 32 << 20, trim_threshold: int = 1 << 30
     return ok
 
 
-def configure_runtime(threads: Optional[int] = 1, tune_malloc: bool = True) -> dict:
-    """Sets torch's and numba's thread counts (None: leave them) and, optionally, the allocator.
+def configure_runtime(threads: Optional[int] = 1, tune_malloc: bool = True, flush_denormal: bool = True) -> dict:
+    """Sets torch's and numba's thread counts (None: leave them) and, optionally, the allocator and
+    the flushing of denormal floats (this thread).
 
     Returns:
-        what was set: {"threads": int | None, "malloc_tuned": bool}.
+        what was set: {"threads": int | None, "malloc_tuned": bool, "flush_denormal": bool}.
     """
     if threads is not None:
         if not isinstance(threads, int) or threads < 1:
@@ -57,4 +61,5 @@ def configure_runtime(threads: Optional[int] = 1, tune_malloc: bool = True) -> d
         except (ImportError, ValueError):
             pass
     tuned = tune_allocator() if tune_malloc else False
-    return {"threads": threads, "malloc_tuned": tuned}
+    flushed = bool(torch.set_flush_denormal(True)) if flush_denormal else False
+    return {"threads": threads, "malloc_tuned": tuned, "flush_denormal": flushed}

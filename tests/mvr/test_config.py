@@ -1,0 +1,45 @@
+"""The hydra config composes and instantiates into the plain objects reconstruct() takes."""
+from __future__ import annotations
+
+import pytest
+from hydra.errors import ConfigCompositionException
+
+from mvr import (EvalSettings, GridSettings, NoiseSettings, OptimSettings, RigSettings, Schedule,
+                 TargetSettings)
+from mvr.__main__ import compose_config, reconstruct_kwargs
+from mvr.reconstruct import default_scene
+from renderer import Scene, TraceSettings
+
+
+def test_defaults_instantiate():
+    kw = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused"]))
+    expected = {"rig": RigSettings, "grid": GridSettings, "target_settings": TargetSettings,
+                "schedule": Schedule, "optim": OptimSettings, "noise": NoiseSettings,
+                "evaluation": EvalSettings, "scene": Scene, "trace": TraceSettings}
+    for key, cls in expected.items():
+        assert isinstance(kw[key], cls), key
+    assert kw["schedule"].grid_resolutions() == [8, 16, 32, 64]  # paper: 8^3 up to 64^3
+    assert kw["optim"].hard_view_updates == 20 and kw["optim"].easy_view_updates == 5  # paper
+    # The YAML and the dataclasses agree, so library users get the command's defaults.
+    for key, cls in expected.items():
+        if key != "scene":
+            assert kw[key] == cls(), key
+    assert kw["scene"] == default_scene()
+    assert kw["scene"].wants("shading") and kw["scene"].wants("silhouette")
+
+
+@pytest.mark.parametrize("group, image_std, camera_std", [("image", 0.1732, 0.0), ("camera", 0.0, 0.05)])
+def test_noise_group(group, image_std, camera_std):
+    kw = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", f"mvr/noise={group}"]))
+    assert kw["noise"] == NoiseSettings(image_std=image_std, camera_std=camera_std)
+
+
+def test_overrides_and_bad_values():
+    kw = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "schedule.levels=8",
+                                            "optim.max_passes=[3,2]", "schedule.image_size=64"]))
+    assert len(kw["schedule"].grid_resolutions()) == 8 and kw["schedule"].image_size == 64
+    assert kw["optim"].for_level("max_passes", 5) == 2
+    with pytest.raises(Exception, match="lr"):
+        reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "optim.lr=-1"]))
+    with pytest.raises(ConfigCompositionException):
+        compose_config(["target=torus", "mvr/noise=loud"])
