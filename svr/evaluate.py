@@ -126,8 +126,13 @@ class EvaluationResult:
 
     @property
     def present(self) -> list[int]:
-        """Indices of the categories with at least one image (the table's columns)."""
-        return sorted(set(int(c) for c in np.unique(self.category)))
+        """Indices of the categories with at least one image: the table's columns, in the data's
+        order, or in the paper's table order for NMR ShapeNet."""
+        cols = sorted(set(int(c) for c in np.unique(self.category)))
+        if self.is_nmr_shapenet:
+            order = {cid: k for k, (cid, _) in enumerate(NMR_CATEGORIES)}
+            cols.sort(key=lambda c: order[self.categories[c][0]])
+        return cols
 
     @property
     def mean(self) -> float:

@@ -143,7 +143,7 @@ def fake_result(category_ids: list[str], split: str = "test") -> EvaluationResul
 
 
 def test_nmr_table_has_the_paper_rows_in_the_paper_layout(tmp_path):
-    res = fake_result(["02691156", "03001627"])  # airplane, chair
+    res = fake_result(["03001627", "02691156"])  # chair, airplane: the columns follow the paper's order
     header, rows = table_rows(res)
     assert header == ["method", "airplane", "chair", "mean"]
     by_method = {r[0]: r[1:] for r in rows}
@@ -201,3 +201,15 @@ def test_errors_name_the_file_or_argument(tiny_run, tmp_path, capsys, monkeypatc
         write_report(fake_result(["02691156"]), blocker / "sub")
     with pytest.raises(ValueError, match="split"):
         evaluate(load_model(tiny_run.checkpoint, "cpu"), tiny_run.datamodule(), "testing")
+
+
+@pytest.mark.slow
+def test_worker_processes_give_the_same_numbers(tiny_run):
+    """protocol_workers (spawned processes for the voxelisation) and DataLoader workers change nothing."""
+    model = load_model(tiny_run.checkpoint, "cpu")
+    dm = tiny_run.datamodule()
+    serial = evaluate(model, dm, "test", views=[0, 9], compare_coarse=True, progress=False)
+    pooled = evaluate(model, dm, "test", views=[0, 9], compare_coarse=True, protocol_workers=2, num_workers=1,
+                      batch_size=1, progress=False)
+    assert np.array_equal(serial.iou, pooled.iou) and np.array_equal(serial.iou_coarse, pooled.iou_coarse)
+    assert np.array_equal(serial.view, pooled.view) and np.array_equal(serial.category, pooled.category)
