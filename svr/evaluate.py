@@ -237,7 +237,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
         batch_size: images per forward pass; num_workers: DataLoader workers.
         compare_coarse: also score the coarse SDF (the refiner's gain).
         protocol_workers: processes for the CPU-bound mesh voxelisation (0: in this process).
-        keep_voxels: keep every predicted voxel grid in the result (M x 4 KiB).
+        keep_voxels: keep every predicted voxel grid in the result (32 KiB per image).
         progress: a tqdm progress bar over the images.
     """
     from torch.utils.data import DataLoader
