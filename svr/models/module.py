@@ -322,12 +322,29 @@ def load_network(path, map_location: str | torch.device = "cpu") -> tuple[SVRNet
     meta = ckpt[CHECKPOINT_KEY]
     if not meta.get("model_config"):
         raise ValueError(f"{path}: the checkpoint holds no model config to rebuild the network from")
+    # A checkpoint is data: never let it name arbitrary callables for hydra to run.
+    for target in _targets(meta["model_config"]):
+        if not str(target).startswith("svr.models."):
+            raise ValueError(f"{path}: its model config names {target!r}; only svr.models classes may be built")
     net = instantiate(meta["model_config"])
     if not isinstance(net, SVRNet):
         raise ValueError(f"{path}: its model config builds a {type(net).__name__}, not an SVRNet")
     load_network_weights(net, ckpt, path)
     net.to(map_location).eval()
     return net, dict(meta)
+
+
+def _targets(config: Any):
+    """Every ``_target_`` value in a nested dict/list config."""
+    if isinstance(config, dict):
+        for key, value in config.items():
+            if key == "_target_":
+                yield value
+            else:
+                yield from _targets(value)
+    elif isinstance(config, (list, tuple)):
+        for value in config:
+            yield from _targets(value)
 
 
 def load_network_weights(net: SVRNet, checkpoint: dict[str, Any], path) -> None:

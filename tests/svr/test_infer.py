@@ -165,3 +165,14 @@ def test_checkpoints_move_between_cpu_and_gpu(tiny_run, tmp_path):
     assert torch.equal(predict(back, images).values, predict(on_cpu, images).values)
     recs = reconstruct(on_gpu, images[:1], views=[0], render_size=24)
     assert recs[0].watertight and recs[0].values.device.type == "cpu"
+
+
+def test_a_checkpoint_cannot_name_arbitrary_callables(tiny_run, tmp_path):
+    from svr.models.module import CHECKPOINT_KEY
+
+    ckpt = torch.load(tiny_run.checkpoint, map_location="cpu", weights_only=True)
+    ckpt[CHECKPOINT_KEY]["model_config"] = {"_target_": "os.system", "command": "echo pwned"}
+    crafted = tmp_path / "crafted.ckpt"
+    torch.save(ckpt, crafted)
+    with pytest.raises(ValueError, match="crafted.ckpt.*os.system"):
+        load_model(crafted, "cpu")
