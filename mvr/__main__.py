@@ -47,7 +47,9 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
         return compose(config_name="mvr", overrides=list(overrides))
 
 
-@hydra.main(version_base="1.3", config_path="../configs", config_name="mvr")
+# An absolute path: a relative one would resolve against the package when main() runs as the
+# console script (hydra then looks for a Python package "configs").
+@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="mvr")
 def main(cfg: DictConfig) -> float:
     """Runs one reconstruction; returns its relative Hausdorff distance (for hydra sweepers)."""
     from .reconstruct import reconstruct

@@ -147,8 +147,11 @@ def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int):
     found = sorted((out_dir / "checkpoints").glob("level_*.pt")) if (out_dir / "checkpoints").is_dir() else []
     if not found:
         return None
-    ckpt = torch.load(found[-1], map_location="cpu", weights_only=False)
-    if ckpt.get("fingerprint") != fingerprint:
+    try:
+        ckpt = torch.load(found[-1], map_location="cpu", weights_only=False)
+    except Exception as exc:  # a truncated or foreign file
+        raise ValueError(f"cannot read checkpoint {str(found[-1])!r} ({exc}); delete it or use resume=false") from exc
+    if not isinstance(ckpt, dict) or ckpt.get("fingerprint") != fingerprint:
         raise ValueError(
             f"out_dir {str(out_dir)!r} holds checkpoints of a run with other settings ({found[-1].name}); "
             f"use another out_dir, or resume=false to start this one afresh")
@@ -235,10 +238,11 @@ def reconstruct(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     spec = target.source if isinstance(target, Target) else str(target)
+    # What shapes the optimisation (the fingerprint a resumed run must match); evaluation is not.
     settings = {
         "target": spec, "rig": asdict(rig), "grid": asdict(grid), "target_settings": asdict(target_settings),
         "schedule": asdict(schedule), "optim": asdict(optim), "noise": asdict(noise),
-        "evaluation": asdict(evaluation), "scene": repr(scene), "trace": asdict(trace), "seed": seed,
+        "scene": repr(scene), "trace": asdict(trace), "seed": seed,
     }
     fingerprint = _fingerprint(settings)
     resolutions = schedule.grid_resolutions()
@@ -249,7 +253,8 @@ def reconstruct(
     if not resume:
         for old in (out / "checkpoints").glob("level_*.pt") if (out / "checkpoints").is_dir() else []:
             old.unlink()
-    outputs.write_json(out / "settings.json", {**settings, "fingerprint": fingerprint})
+    outputs.write_json(out / "settings.json", {**settings, "evaluation": asdict(evaluation), "backend": backend,
+                                               "fingerprint": fingerprint})
 
     t0 = time.perf_counter()
     tgt = target if isinstance(target, Target) else make_target(

@@ -78,8 +78,14 @@ def test_resume_and_settings_guard(tmp_path):
     assert third.metrics["resumed_from_level"] == 1 and len(third.levels) == 2
     with pytest.raises(ValueError, match="other settings"):
         reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.1), **kwargs)
+    # Evaluation settings do not shape the fit: a rerun with more samples resumes.
+    more = reconstruct("sphere", tmp_path, **{**kwargs, "evaluation": EvalSettings(samples=800)})
+    assert more.metrics["resumed_from_level"] == 2 and more.metrics["samples"] == 800
     fresh = reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.1), resume=False, **kwargs)
     assert fresh.metrics["resumed_from_level"] is None
+    (tmp_path / "checkpoints" / "level_01.pt").write_bytes(b"truncated")
+    with pytest.raises(ValueError, match="level_01.pt"):
+        reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.1), **kwargs)
 
 
 def test_noise_options_run(tmp_path):
@@ -113,6 +119,8 @@ def test_command_line(tmp_path):
     assert {"hausdorff_rel", "chamfer_rel", "seconds"} <= metrics.keys()
     settings = json.loads((out / "settings.json").read_text())
     assert settings["noise"]["image_std"] == pytest.approx(0.1732)
-    bad = subprocess.run([sys.executable, "-m", "mvr", "target=nosuchshape", f"out_dir={tmp_path / 'bad'}"],
-                         cwd=ROOT, capture_output=True, text=True, timeout=300)
-    assert bad.returncode != 0 and "nosuchshape" in bad.stderr
+    # The console script sdfdiff-mvr calls mvr.__main__:main with the same argv.
+    script = ("import sys; from mvr.__main__ import main; "
+              f"sys.argv = ['sdfdiff-mvr', 'target=nosuchshape', 'out_dir={tmp_path / 'bad'}']; main()")
+    bad = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert bad.returncode != 0 and "nosuchshape" in bad.stderr and "built-in shape" in bad.stderr
