@@ -206,14 +206,14 @@ class ViewLosses:
         return s.eikonal_weight * eik + s.laplacian_weight * lap, eik, lap
 
 
-def optimise_level(grid: SDFGrid, losses: ViewLosses, settings: OptimSettings, level: int = 0,
-                   seed: int = 0, progress: bool = True, description: str = "") -> tuple[SDFGrid, LevelReport]:
+def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int = 0, progress: bool = True,
+                   description: str = "") -> tuple[SDFGrid, LevelReport]:
     """Fits one grid to the target views (one level of the coarse-to-fine schedule).
 
     Args:
         grid: the starting grid (one grid, B = 1); its values are copied, not changed.
-        losses: the views, targets and weights.
-        settings: Adam and the stopping rules; level: 0-based level index (per-level settings).
+        losses: the views, targets and settings (weights, Adam, stopping rules: ``losses.settings``).
+        level: 0-based level index (for per-level settings).
         seed: seeds the order of the views.
         progress: show a tqdm bar over the passes.
     Returns:
@@ -223,6 +223,7 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, settings: OptimSettings, l
 
     if grid.batch_size != 1:
         raise ValueError(f"optimise_level fits one grid, got a batch of {grid.batch_size}")
+    settings = losses.settings
     t_start = time.perf_counter()
     voxel = float(grid.voxel_size.min())
     values = grid.values.detach().clone().requires_grad_(True)
@@ -309,7 +310,7 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, settings: OptimSettings, l
     final = SDFGrid(values.detach().clone(), lo, hi)
     with torch.no_grad():
         _, eik, lap = losses.regulariser(final)
-        if losses.settings.eikonal_weight == 0:
+        if settings.eikonal_weight == 0:
             eik = eikonal_loss(final)
     report = LevelReport(
         level=level, resolution=grid.resolution[0], image_size=losses.cameras.image_size[0],

@@ -292,7 +292,7 @@ def reconstruct(
         cams_opt = perturbed_cameras(cams_true, cam_offsets) if noise.camera_std > 0 else cams_true
         losses = ViewLosses(cams_opt, images, masks, scene, trace, backend, optim)
         desc = f"level {level + 1}/{len(resolutions)} {res}^3 {size}px"
-        current, report = optimise_level(current, losses, optim, level, seed, progress, desc)
+        current, report = optimise_level(current, losses, level, seed, progress, desc)
         reports.append(report)
         log.info("%s: %d passes, %d updates, loss %.3e -> %.3e, %.1fs (%s)", desc, report.passes, report.updates,
                  report.loss_start, report.loss_end, report.seconds, report.stop_reason)

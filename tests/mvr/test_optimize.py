@@ -25,7 +25,7 @@ def problem():
 def test_level_reduces_the_loss(problem):
     grid, losses = problem
     settings = OptimSettings(max_passes=2, hard_view_updates=6, easy_view_updates=2, lr=0.1)
-    fitted, report = optimise_level(grid, losses(settings), settings, progress=False)
+    fitted, report = optimise_level(grid, losses(settings), progress=False)
     assert report.loss_end < 0.5 * report.loss_start
     assert report.passes == len(report.history) <= 2 and report.updates > 0
     assert torch.equal(grid.values, SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.7, 8).values)  # untouched
@@ -47,7 +47,7 @@ FEW = dict(hard_view_updates=1, easy_view_updates=1)
 ])
 def test_stopping_rules(problem, settings, reason):
     grid, losses = problem
-    _, report = optimise_level(grid, losses(settings), settings, progress=False)
+    _, report = optimise_level(grid, losses(settings), progress=False)
     assert report.stop_reason == reason and report.passes == 1
 
 
@@ -57,4 +57,4 @@ def test_view_losses_bad_input(problem):
     with pytest.raises(ValueError, match="do not match"):
         ViewLosses(good.cameras, good.images[:3], good.masks[:3], good.scene, good.trace, "auto", good.settings)
     with pytest.raises(ValueError, match="one grid"):
-        optimise_level(SDFGrid(grid.values.expand(2, -1, -1, -1).clone()), good, good.settings, progress=False)
+        optimise_level(SDFGrid(grid.values.expand(2, -1, -1, -1).clone()), good, progress=False)
