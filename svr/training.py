@@ -95,12 +95,20 @@ def build_scene(loss_cfg: DictConfig, weights: LossWeights, shading_model) -> re
     return renderer.Scene(effects=("silhouette",), silhouette_sigma=sigma)
 
 
+def stage_loss_config(cfg: DictConfig, stage: str) -> DictConfig:
+    """The loss config of one stage: ``loss`` with the stage's ``stage.<name>.loss`` entries on top
+    (e.g. a wider soft silhouette early on)."""
+    extra = cfg.stage[stage].get("loss")
+    return OmegaConf.merge(cfg.loss, extra) if extra else cfg.loss
+
+
 def build_module(cfg: DictConfig, net: SVRNet, stage: str, datamodule) -> SVRLightningModule:
     """The LightningModule of one stage, from the loss and stage config groups."""
-    weights = instantiate(cfg.loss.weights)
+    loss_cfg = stage_loss_config(cfg, stage)
+    weights = instantiate(loss_cfg.weights)
     if not isinstance(weights, LossWeights):
         raise TypeError(f"loss.weights must instantiate a svr.losses.LossWeights, got {type(weights).__name__}")
-    trace = instantiate(cfg.loss.trace) if cfg.loss.get("trace") is not None else renderer.TraceSettings()
+    trace = instantiate(loss_cfg.trace) if loss_cfg.get("trace") is not None else renderer.TraceSettings()
     stage_cfg = cfg.stage[stage]
     optimizer = instantiate(stage_cfg.optimizer) if stage_cfg.get("optimizer") is not None else None
     scheduler = instantiate(stage_cfg.scheduler) if stage_cfg.get("scheduler") is not None else None
@@ -108,10 +116,10 @@ def build_module(cfg: DictConfig, net: SVRNet, stage: str, datamodule) -> SVRLig
         net=net,
         stage=stage,
         loss_weights=weights,
-        scene=build_scene(cfg.loss, weights, getattr(datamodule, "shading", None)),
-        render_size=int(cfg.loss.get("render_size", 64)),
+        scene=build_scene(loss_cfg, weights, getattr(datamodule, "shading", None)),
+        render_size=int(loss_cfg.get("render_size", 64)),
         trace_settings=trace,
-        backend=str(cfg.loss.get("backend", "auto")),
+        backend=str(loss_cfg.get("backend", "auto")),
         optimizer=optimizer,
         scheduler=scheduler,
         categories=getattr(datamodule, "categories", None),

@@ -201,8 +201,11 @@ class SVRLightningModule(pl.LightningModule):
         if terms is not None and not self._skip_this_step:
             for name, value in terms.as_dict().items():
                 self.log(f"train/{name}", value.detach(), batch_size=bs, prog_bar=name == "total")
-        self.log("train/skipped_steps", float(self.skipped_steps), batch_size=bs)
         return loss
+
+    def on_train_batch_end(self, outputs: Any, batch: SVRBatch, batch_idx: int) -> None:
+        # Logged after the optimiser hook, so a step skipped for its gradient is counted in its own row.
+        self.log("train/skipped_steps", float(self.skipped_steps), batch_size=len(batch))
 
     def on_before_optimizer_step(self, optimizer: torch.optim.Optimizer) -> None:
         """Drops every gradient of a skipped step, or of a step with a non-finite gradient."""

@@ -1,0 +1,197 @@
+"""svr.models: shapes, bounds, initial states, the paper-size config, the frozen stage, checkpoints
+and bad input."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
+
+import renderer
+from svr.data.types import SVRBatch
+from svr.models import ImageEncoder, SDFDecoder, SDFRefiner, SVRNet, sphere_template
+from svr.models.decoder import linear_upsample_matrix, upsample_grid
+from svr.models.module import SVRLightningModule, load_checkpoint, load_network
+
+CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
+
+
+def tiny_net(n: int = 16, refiner_stride: int = 2) -> SVRNet:
+    return SVRNet(
+        ImageEncoder(channels=(4, 8, 8, 8), latent_dim=16),
+        SDFDecoder(latent_dim=16, base_resolution=4, channels=(8, 4), grid_resolution=n),
+        SDFRefiner(channels=(4, 8), grid_resolution=n, input_stride=refiner_stride),
+    )
+
+
+def model_config(name: str) -> dict:
+    with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
+        cfg = compose("train", overrides=[f"model={name}"])
+    return cfg.model
+
+
+def test_shapes_and_bounds():
+    torch.manual_seed(0)
+    net = tiny_net()
+    images = torch.rand(3, 4, 64, 64)
+    out = net(images)
+    assert out.coarse.shape == out.refined.shape == (3, 16, 16, 16)
+    assert out.final is out.refined
+    assert net(images, refine=False).refined is None
+    assert out.coarse.abs().max() < net.decoder.output_bound
+    assert (out.refined - out.coarse).abs().max() < net.refiner.residual_bound
+    assert net.voxel_size == pytest.approx(1.2 / 15)
+    grid = net.grid(out.coarse)
+    assert isinstance(grid, renderer.SDFGrid) and grid.bbox_max.tolist() == pytest.approx([0.6] * 3)
+
+
+def test_untrained_decoder_outputs_the_template_sphere_and_refiner_the_identity():
+    torch.manual_seed(0)
+    net = tiny_net().eval()
+    out = net(torch.rand(2, 4, 64, 64))
+    b = net.decoder.output_bound
+    template = b * torch.tanh(sphere_template(16, 0.6, 0.3) / b)
+    assert (out.coarse - template).abs().max() < 0.02  # the head starts near zero
+    assert torch.equal(out.refined, out.coarse)        # the refiner's head starts at zero
+
+
+@pytest.mark.parametrize("stride", [1, 2])
+def test_refiner_strides(stride):
+    r = SDFRefiner(channels=(2, 4, 4), grid_resolution=16, input_stride=stride)
+    torch.nn.init.normal_(r.head.weight, std=0.1)
+    x = torch.randn(2, 16, 16, 16)
+    y = r(x)
+    assert y.shape == x.shape and not torch.equal(x, y)
+
+
+def test_upsampling_matches_trilinear_interpolation():
+    x = torch.randn(2, 5, 5, 5)
+    fast = upsample_grid(x, linear_upsample_matrix(5, 9))
+    ref = torch.nn.functional.interpolate(x[:, None], size=(9, 9, 9), mode="trilinear", align_corners=True)[:, 0]
+    assert torch.allclose(fast, ref, atol=1e-6)
+
+
+def test_paper_config_has_the_authors_size_and_small_trains_on_cpu():
+    with torch.device("meta"):
+        paper = instantiate(model_config("paper"))
+    n_paper = sum(p.numel() for p in paper.parameters())
+    assert 120e6 < n_paper < 200e6  # SPEC 4: about 160M parameters, mostly fully connected
+    small = instantiate(model_config("small"))
+    assert sum(p.numel() for p in small.parameters()) < 5e6
+    assert small.grid_resolution == paper.grid_resolution == 64
+
+
+def test_bad_arguments_name_the_argument():
+    with pytest.raises(ValueError, match="image_size"):
+        ImageEncoder(image_size=60, channels=(4, 4, 4))
+    with pytest.raises(ValueError, match="channels"):
+        ImageEncoder(channels=())
+    with pytest.raises(ValueError, match="grid_resolution"):
+        SDFDecoder(base_resolution=8, channels=(4, 4, 4, 4), grid_resolution=32)
+    with pytest.raises(ValueError, match="template_radius"):
+        SDFDecoder(template_radius=0.7, half_side=0.6)
+    with pytest.raises(ValueError, match="grid_resolution"):
+        SDFRefiner(channels=(2, 4, 4), grid_resolution=18)
+    with pytest.raises(ValueError, match="input_stride"):
+        SDFRefiner(input_stride=3)
+    with pytest.raises(ValueError, match="half_side"):
+        SVRNet(ImageEncoder(), SDFDecoder(half_side=0.5, template_radius=0.2), SDFRefiner(half_side=0.5),
+               half_side=0.5)
+    with pytest.raises(ValueError, match="decoder.half_side"):
+        SVRNet(ImageEncoder(), SDFDecoder(half_side=0.7), SDFRefiner(), half_side=0.6)
+    with pytest.raises(ValueError, match="images"):
+        ImageEncoder()(torch.zeros(1, 3, 64, 64))
+    with pytest.raises(ValueError, match="stage"):
+        SVRLightningModule(tiny_net(), stage="fine")
+    with pytest.raises(TypeError, match="net"):
+        SVRLightningModule(torch.nn.Linear(2, 2))
+
+
+# ------------------------------------------------------------------------------------------------
+# stages
+
+
+def fake_batch(b: int = 4, v: int = 2, n_views: int = 24) -> SVRBatch:
+    g = torch.Generator().manual_seed(0)
+    images = torch.zeros(b, v, 4, 64, 64)
+    images[:, :, :, 20:44, 24:40] = 1.0  # a box silhouette, white object on a white background
+    images[:, :, :3] = 1.0
+    return SVRBatch(images=images, view_ids=torch.randint(0, n_views, (b, v), generator=g),
+                    voxels=torch.zeros(b, 32, 32, 32, dtype=torch.bool), category=torch.zeros(b, dtype=torch.long),
+                    object_index=torch.arange(b))
+
+
+def _bn_state(module: torch.nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.clone() for k, v in module.state_dict().items()}
+
+
+def test_refine_stage_freezes_encoder_and_decoder():
+    torch.manual_seed(0)
+    module = SVRLightningModule(tiny_net(), stage="refine", render_size=16)
+    enc, dec, ref = module.net.encoder, module.net.decoder, module.net.refiner
+    assert not any(p.requires_grad for p in list(enc.parameters()) + list(dec.parameters()))
+    assert all(p.requires_grad for p in ref.parameters())
+    module.train()  # as Lightning does: the frozen parts must stay in eval mode
+    bns = [m for m in list(enc.modules()) + list(dec.modules()) if isinstance(m, torch.nn.modules.batchnorm._BatchNorm)]
+    assert bns and all(not m.training for m in bns)
+    assert all(m.training for m in ref.modules())
+    before = {"enc": _bn_state(enc), "dec": _bn_state(dec), "ref": _bn_state(ref)}
+    opt = torch.optim.Adam([p for p in module.parameters() if p.requires_grad], lr=1e-2)
+    batch = fake_batch()
+    for _ in range(3):
+        sdf = module(batch.images[:, 0])
+        loss = module.compute_loss(batch, sdf).total
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    for name in ("enc", "dec"):
+        after = _bn_state(getattr(module.net, {"enc": "encoder", "dec": "decoder"}[name]))
+        for k, v in before[name].items():
+            assert torch.equal(v, after[k]), f"{name}.{k} changed (weights or batch-norm statistics)"
+    assert any(not torch.equal(v, _bn_state(ref)[k]) for k, v in before["ref"].items())
+
+
+def test_coarse_stage_does_not_run_or_train_the_refiner():
+    module = SVRLightningModule(tiny_net(), stage="coarse", render_size=16)
+    coarse, refined = module.predict_sdf(torch.rand(2, 4, 64, 64))
+    assert refined is None
+    assert not any(p.requires_grad for p in module.net.refiner.parameters())
+    assert all(p.requires_grad for p in module.net.encoder.parameters())
+    joint = SVRLightningModule(tiny_net(), stage="joint")
+    assert all(p.requires_grad for p in joint.parameters())
+
+
+def test_checkpoint_round_trip_and_bad_files(tmp_path):
+    import pytorch_lightning as pl
+
+    cfg = model_config("tiny")
+    from omegaconf import OmegaConf
+
+    plain = OmegaConf.to_container(cfg, resolve=True)
+    net = instantiate(plain)
+    module = SVRLightningModule(net, stage="coarse", model_config=plain)
+    trainer = pl.Trainer(logger=False, enable_checkpointing=False, enable_progress_bar=False,
+                         enable_model_summary=False, max_steps=0)
+    trainer.strategy.connect(module)
+    path = tmp_path / "m.ckpt"
+    trainer.save_checkpoint(path)
+    net2, meta = load_network(path)
+    assert meta["stage"] == "coarse" and meta["grid_resolution"] == 32
+    images = torch.rand(2, 4, 64, 64)
+    net.eval()
+    assert torch.equal(net(images).final, net2(images).final)
+
+    (tmp_path / "junk.ckpt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="junk.ckpt"):
+        load_checkpoint(tmp_path / "junk.ckpt")
+    torch.save({"state_dict": {}}, tmp_path / "other.ckpt")
+    with pytest.raises(ValueError, match="other.ckpt"):
+        load_checkpoint(tmp_path / "other.ckpt")
+    with pytest.raises(FileNotFoundError, match="missing.ckpt"):
+        load_checkpoint(tmp_path / "missing.ckpt")
+    truncated = tmp_path / "truncated.ckpt"
+    truncated.write_bytes(path.read_bytes()[:1000])
+    with pytest.raises(ValueError, match="truncated.ckpt"):
+        load_checkpoint(truncated)
