@@ -30,8 +30,13 @@ test: install
 test-slow: install
 	$(PY) -m pytest -q -m slow
 
+# The main job: single-view training (experiment=demo) on the built-in procedural data, then the
+# benchmark IoU table, pictures and meshes in outputs/demo/. Run again to resume a stopped run.
 demo: install
-	$(PY) -m renderer.demo --out docs
+	$(PY) -m svr.demo --out outputs/demo
+
+bench: install
+	$(PY) benchmarks/bench_renderer.py
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache

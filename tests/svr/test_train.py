@@ -122,6 +122,17 @@ def test_one_stage_from_another_stages_weights(tmp_path, data_overrides):
     assert_same(state(ckpt, "net.encoder."), state(final, "net.encoder."), "encoder from the coarse checkpoint")
 
 
+def test_same_seed_same_weights(tmp_path, data_overrides):
+    """Seeded and reproducible: the same seed gives the same weights bit for bit, another seed not."""
+    def final(seed: int, name: str) -> dict:
+        result = train(compose_train(tiny_overrides(data_overrides, 3, "stage=coarse", f"seed={seed}")), tmp_path / name)
+        return state(result.checkpoint("coarse", "final"), "net.")
+
+    a, b, c = final(0, "a"), final(0, "b"), final(1, "c")
+    assert_same(a, b, "same seed")
+    assert any(not torch.equal(a[k], c[k]) for k in a)
+
+
 # ------------------------------------------------------------------------------------------------
 # learning and robustness
 

@@ -1,0 +1,311 @@
+"""The CPU demo: train ``experiment=demo`` from scratch on the procedural data, then evaluate it.
+
+    python -m svr.demo [--out outputs/demo] [--eval-only | --fresh] [hydra overrides ...]
+
+A run that was stopped resumes from its last checkpoint when the command is run again; a finished
+run is only evaluated again.
+
+Writes into ``--out`` (default ``outputs/demo``):
+
+* ``train/``: the training run (config.yaml, per-stage checkpoints and logs; svr/training.py);
+* the evaluation script's files (``svr.evaluate``: the benchmark IoU protocol, every view of every
+  test object): ``table.md`` / ``table.csv`` in the paper's layout (categories as columns, mean
+  last) with the full model, the coarse stage alone and the mean training shape (the same
+  prediction for every input) as rows; ``iou.json`` (``{"split", "categories", "mean", ...}``,
+  the baselines under ``"extra"``); ``per_object.csv`` and ``per_image.csv``;
+* ``timings.json``: training, evaluation and total seconds;
+* ``predictions.png``: per category one test input beside renders of the predictions;
+* ``meshes/*.ply``: marching-cubes meshes of the full model's predictions for those inputs.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+import torch
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+# ------------------------------------------------------------------------------------------------
+# The mean-shape baseline
+
+
+def protocol_voxels_of_shape(voxels: torch.Tensor) -> torch.Tensor:
+    """What the benchmark protocol makes of a voxel shape predicted as an SDF: its signed distance
+    grid (``svr.geometry.voxels_to_sdf``) -> marching cubes -> NMR voxelisation.
+
+    Args:
+        voxels: (32, 32, 32) bool (NMR frame).
+    Returns:
+        (32, 32, 32) bool (NMR frame).
+    """
+    from .geometry import voxels_to_sdf
+    from .metrics import voxels_protocol
+
+    values, lo, hi = voxels_to_sdf(np.asarray(voxels, dtype=bool))
+    return voxels_protocol(torch.from_numpy(values), lo, hi)[0]
+
+
+def mean_training_shape(train_voxels: torch.Tensor) -> tuple[torch.Tensor, float]:
+    """The best single prediction for every input, scored like a network's: the training objects'
+    mean occupancy thresholded at the level (0.05 .. 0.95) whose protocol voxels
+    (``protocol_voxels_of_shape``) have the highest mean IoU over the training objects.
+
+    Args:
+        train_voxels: (N, 32, 32, 32) bool ground truth of the training split (NMR voxel frame).
+    Returns:
+        ((32, 32, 32) bool protocol voxels of that shape, the threshold).
+    """
+    from .metrics import voxel_iou
+
+    if not isinstance(train_voxels, torch.Tensor) or train_voxels.ndim != 4 or train_voxels.shape[0] == 0:
+        shape = tuple(train_voxels.shape) if isinstance(train_voxels, torch.Tensor) else type(train_voxels).__name__
+        raise ValueError(f"train_voxels must be a non-empty (N, R, R, R) tensor, got {shape}")
+    occupancy = train_voxels.float().mean(0)
+    best, best_t, best_vox = -1.0, 0.5, None
+    for t in np.linspace(0.05, 0.95, 19):
+        vox = protocol_voxels_of_shape(occupancy >= t)
+        score = float(voxel_iou(vox.expand_as(train_voxels), train_voxels).mean())
+        if score > best:
+            best, best_t, best_vox = score, float(t), vox
+    return best_vox, best_t
+
+
+def constant_shape_table(shape: torch.Tensor, objects, result):
+    """The IoU table of predicting ``shape`` for every image that ``result`` scored.
+
+    Args:
+        shape: (32, 32, 32) bool voxels (NMR frame).
+        objects: the split's dataset (``datamodule.dataset(split)``).
+        result: svr.evaluate.EvaluationResult of the same split (its images are the ones scored).
+    Returns:
+        svr.metrics.IoUTable over the same images as ``result``.
+    """
+    from .metrics import iou_table, voxel_iou
+
+    cat = torch.as_tensor(result.category)
+    glob = torch.as_tensor(objects.offsets)[cat] + torch.as_tensor(result.object_index)
+    per_object = {int(g): float(voxel_iou(shape, objects.voxels(int(g)))) for g in torch.unique(glob)}
+    iou = np.array([per_object[int(g)] for g in glob], dtype=np.float64)
+    return iou_table(iou, result.category, result.categories)
+
+
+# ------------------------------------------------------------------------------------------------
+# Pictures and meshes
+
+
+@torch.no_grad()
+def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], scene, out_dir: Path,
+             views: Sequence[int] = (0,)) -> list[Path]:
+    """For the first test object of each category: a PNG row (input, the coarse stage's and the
+    full model's predictions rendered from the input view, the full model's from 90 and 180 degrees
+    further round) and the full model's marching-cubes mesh (.ply).
+
+    Returns:
+        the files written (the PNG first).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    import renderer
+
+    from .geometry import sdf_to_mesh
+
+    net.eval()
+    coarse_net.eval()
+    mesh_dir = out_dir / "meshes"
+    mesh_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    rows = []
+    for c, (cid, name) in enumerate(categories):
+        if dataset.counts[c] == 0:
+            continue
+        obj = int(dataset.offsets[c])
+        for v in views:
+            image = dataset.views(obj, [v])  # (1, 4, 64, 64)
+            final = net(image).final
+            coarse = coarse_net(image, refine=False).coarse
+            hs = net.half_side
+            shots = []
+            for sdf, view in ((coarse, v), (final, v), (final, v + 6), (final, v + 12)):
+                cams = renderer.Cameras.nmr([view % 24], image_size=64)
+                out = renderer.render(renderer.SDFGrid(sdf, -hs, hs), cams, scene)
+                shots.append(out.image[0].clamp(0, 1).numpy())
+            rows.append((f"{name} #0 view {v}", image[0, :3].permute(1, 2, 0).numpy(), shots))
+            mesh = sdf_to_mesh(final[0], -hs, hs)
+            path = mesh_dir / f"{name}_test0_view{v}.ply"
+            mesh.export(path)
+            written.append(path)
+    titles = ["input", "coarse stage", "full model", "full, +90°", "full, +180°"]
+    fig, axes = plt.subplots(len(rows), 5, figsize=(5 * 1.6, len(rows) * 1.7), squeeze=False)
+    for r, (label, inp, shots) in enumerate(rows):
+        for k, img in enumerate([inp] + shots):
+            ax = axes[r, k]
+            ax.imshow(img)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if r == 0:
+                ax.set_title(titles[k], fontsize=8)
+        axes[r, 0].set_ylabel(label, fontsize=7)
+    fig.tight_layout()
+    png = out_dir / "predictions.png"
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return [png] + written
+
+
+# ------------------------------------------------------------------------------------------------
+# The driver
+
+
+def compose_config(overrides: Sequence[str]):
+    """configs/train.yaml with ``experiment=demo`` and the given overrides (hydra compose API)."""
+    from hydra import compose, initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(REPO_ROOT / "configs"), version_base="1.3"):
+        return compose("train", overrides=["experiment=demo", *overrides])
+
+
+def stage_checkpoint(run_dir: Path, stage: str) -> Path:
+    """A finished stage's best checkpoint (by validation IoU), else its final one."""
+    d = Path(run_dir) / stage / "checkpoints"
+    for name in ("best.ckpt", "final.ckpt"):
+        if (d / name).is_file():
+            return d / name
+    raise FileNotFoundError(f"no best.ckpt or final.ckpt in {d}: has the {stage} stage run?")
+
+
+def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progress: bool = True,
+                 protocol_workers: int = 0) -> dict:
+    """Scores a finished demo run with the benchmark protocol (``svr.evaluate``): its last stage's
+    checkpoint, its coarse stage's checkpoint and the mean training shape, on the same images.
+
+    Writes into ``out_dir`` the evaluation script's files (``table.md``, ``table.csv``,
+    ``iou.json`` with the baselines under ``"extra"``, ``per_object.csv``, ``per_image.csv``),
+    ``predictions.png`` and ``meshes/``.
+
+    Returns:
+        ``{"table": markdown, "iou": the iou.json dict, "files": [paths]}``.
+    """
+    from hydra.utils import instantiate
+
+    from .evaluate import evaluate, format_table, write_report
+    from .infer import load_model
+    from .models.module import load_network
+
+    dm = instantiate(cfg.data)
+    dm.prepare_data()
+    schedule = list(cfg.stage.schedule)
+    final_ckpt, coarse_ckpt = stage_checkpoint(run_dir, schedule[-1]), stage_checkpoint(run_dir, schedule[0])
+    kwargs = dict(progress=progress, protocol_workers=protocol_workers,
+                  batch_size=int(cfg.data.get("eval_batch_size", 32)))
+    result = evaluate(load_model(final_ckpt, "cpu"), dm, split, **kwargs)
+    extra = {}
+    if coarse_ckpt != final_ckpt:
+        extra["coarse stage alone"] = evaluate(load_model(coarse_ckpt, "cpu"), dm, split, **kwargs).table
+    train_set = dm.dataset("train")
+    shape, _ = mean_training_shape(torch.stack([train_set.voxels(i) for i in range(len(train_set))]))
+    extra["mean training shape"] = constant_shape_table(shape, dm.dataset(split), result)
+    label = f"ours ({schedule[-1]} stage, {result.output})"
+    files = write_report(result, out_dir, extra_rows=extra, label=label)
+
+    net, _ = load_network(final_ckpt)
+    coarse_net, _ = load_network(coarse_ckpt)
+    scene = dm.shading.scene(effects=("shading",)) if dm.shading is not None else None
+    if scene is None:
+        import renderer
+
+        scene = renderer.Scene(effects=("shading",), background=(1.0, 1.0, 1.0))
+    pictures = showcase(net, coarse_net, dm.dataset(split), dm.categories, scene, out_dir)
+    summary = json.loads(Path(files["json"]).read_text())
+    return {"table": format_table(result, extra, label), "iou": summary,
+            "files": [str(p) for p in files.values()] + [str(p) for p in pictures]}
+
+
+def resume_point(run_dir: Path, schedule: Sequence[str]) -> tuple[bool, Optional[Path]]:
+    """Where a demo run left off: (finished, checkpoint to resume from).
+
+    Finished when the last scheduled stage wrote ``final.ckpt``; otherwise the latest stage with a
+    ``final.ckpt`` or ``last.ckpt`` is resumed from it (None: start from scratch).
+    """
+    for i, stage in reversed(list(enumerate(schedule))):
+        d = Path(run_dir) / stage / "checkpoints"
+        if (d / "final.ckpt").is_file():
+            return i == len(schedule) - 1, d / "final.ckpt"
+        if (d / "last.ckpt").is_file():
+            return False, d / "last.ckpt"
+    return False, None
+
+
+def main(argv: Optional[Sequence[str]] = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--out", default="outputs/demo", help="output folder (default outputs/demo)")
+    parser.add_argument("--eval-only", action="store_true", help="evaluate the run already in OUT/train")
+    parser.add_argument("--fresh", action="store_true",
+                        help="train from scratch even if OUT/train holds an unfinished or finished run")
+    parser.add_argument("--protocol-workers", type=int, default=2,
+                        help="processes for the evaluation's mesh voxelisation (default 2)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("overrides", nargs="*", help="hydra overrides of configs/train.yaml (after experiment=demo)")
+    args = parser.parse_args(argv)
+    if args.protocol_workers < 0:
+        parser.error(f"--protocol-workers must be >= 0, got {args.protocol_workers}")
+    out_dir = Path(args.out)
+    if not out_dir.is_absolute():
+        out_dir = REPO_ROOT / out_dir
+    run_dir = out_dir / "train"
+    cfg = compose_config(list(args.overrides) + (["data.progress=false"] if args.quiet else []))
+    if args.quiet:
+        cfg.callbacks.progress_bar = None
+        cfg.trainer.enable_progress_bar = False
+    schedule = list(cfg.stage.schedule)
+    start = time.time()
+    train_seconds = None
+    finished, resume = (False, None) if args.fresh else resume_point(run_dir, schedule)
+    if args.eval_only:
+        if not finished:
+            raise SystemExit(f"svr.demo: error: --eval-only needs a finished run in {run_dir} "
+                             f"(no {schedule[-1]}/checkpoints/final.ckpt)")
+    elif finished:
+        print(f"{run_dir} holds a finished run: evaluating it (--fresh trains again)")
+    else:
+        from .training import train
+
+        if args.fresh and run_dir.exists():
+            import shutil
+
+            shutil.rmtree(run_dir)
+        if resume is not None:
+            print(f"resuming the unfinished run in {run_dir} from {resume}")
+            cfg.ckpt_path = str(resume)
+        print(f"training experiment=demo into {run_dir} (stages: {', '.join(schedule)})", flush=True)
+        train(cfg, run_dir)
+        train_seconds = time.time() - start
+    t_eval = time.time()
+    result = evaluate_run(cfg, run_dir, out_dir, progress=not args.quiet, protocol_workers=args.protocol_workers)
+    timings = {"train_seconds": train_seconds, "eval_seconds": time.time() - t_eval,
+               "total_seconds": time.time() - start}
+    from mvr.outputs import write_json
+
+    result["files"].append(str(write_json(out_dir / "timings.json", timings)))
+    print()
+    print(result["table"])
+    if train_seconds is not None:
+        print(f"training {train_seconds / 60:.1f} min, evaluation {timings['eval_seconds'] / 60:.1f} min, "
+              f"total {timings['total_seconds'] / 60:.1f} min")
+    print(f"outputs in {out_dir}:")
+    for f in result["files"]:
+        print(f"  {f}")
+    return {**result, **timings}
+
+
+if __name__ == "__main__":
+    main()
