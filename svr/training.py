@@ -27,6 +27,7 @@ import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from pytorch_lightning.callbacks import ModelCheckpoint
+from pytorch_lightning.loggers import CSVLogger
 
 import renderer
 
@@ -141,6 +142,18 @@ def _instantiate_group(group: Optional[DictConfig], **extra) -> list:
     return out
 
 
+def keep_previous_metrics(log_dir: Path) -> Optional[Path]:
+    """Moves a ``metrics.csv`` left by an earlier (resumed or repeated) run of a stage aside to
+    ``metrics.<k>.csv``: Lightning's CSV logger would delete it. Returns the new name, if any."""
+    old = log_dir / "metrics.csv"
+    if not old.is_file():
+        return None
+    k = 1
+    while (log_dir / f"metrics.{k}.csv").exists():
+        k += 1
+    return old.rename(log_dir / f"metrics.{k}.csv")
+
+
 def build_trainer(cfg: DictConfig, stage: str, stage_dir: Path) -> pl.Trainer:
     """A Trainer for one stage: its step budget, callbacks (checkpoints into ``stage_dir``),
     loggers (into ``stage_dir``) and atomic checkpoint files."""
@@ -150,6 +163,9 @@ def build_trainer(cfg: DictConfig, stage: str, stage_dir: Path) -> pl.Trainer:
         if isinstance(cb, ModelCheckpoint) and cb.dirpath is None:
             cb.dirpath = str(stage_dir / "checkpoints")
     loggers = _instantiate_group(cfg.get("logger"), save_dir=str(stage_dir))
+    for lg in loggers:
+        if isinstance(lg, CSVLogger):
+            keep_previous_metrics(Path(lg.log_dir))
     kwargs: dict[str, Any] = dict(
         max_steps=int(stage_cfg.max_steps),
         callbacks=callbacks,
