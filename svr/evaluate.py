@@ -20,6 +20,18 @@ Python API (reused by drivers such as a demo, so there is one implementation of 
 
     result = evaluate(load_model("best.ckpt"), datamodule, split="test")
     print(format_table(result)); write_report(result, "eval_out")
+
+Several processes (one machine or many): start the same command under torchrun or srun; each
+process evaluates one contiguous block of the images (no image twice, none left out), the
+per-image results are gathered (gloo) into the same table a single process makes, and only rank 0
+prints and writes::
+
+    torchrun --standalone --nproc_per_node=4 -m svr.evaluate ckpt_path=X.ckpt output_dir=eval_out
+    srun --ntasks=8 python -m svr.evaluate ckpt_path=X.ckpt output_dir=eval_out     (SLURM)
+
+(``distributed=false`` evaluates everything in each process instead.) With GPUs each process takes
+the GPU of its local rank. In Python: ``evaluate(..., distributed=True)`` inside an initialised
+``torch.distributed`` process group, called by every rank.
 """
 from __future__ import annotations
 
@@ -38,6 +50,7 @@ import numpy as np
 import torch
 
 from .data.nmr import NMR_CATEGORIES, NUM_VIEWS, SPLITS
+from .distributed import RankInfo, barrier, gather_uneven, local_rank, process_group_from_environment
 from .infer import ModelLike, as_model, ensure_output_dir, predict_sdf
 from .metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table, voxel_iou, voxels_protocol
 
@@ -223,7 +236,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
                      dataset: str = "", views: Optional[Sequence[int]] = None,
                      max_objects_per_category: Optional[int] = None, batch_size: int = 32, num_workers: int = 0,
                      compare_coarse: bool = False, protocol_workers: int = 0, keep_voxels: bool = False,
-                     progress: bool = True) -> EvaluationResult:
+                     progress: bool = True, distributed: bool = False) -> EvaluationResult:
     """Runs the benchmark protocol over the (object, view) images of a split's objects.
 
     Args:
@@ -239,11 +252,18 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
         protocol_workers: processes for the CPU-bound mesh voxelisation (0: in this process).
         keep_voxels: keep every predicted voxel grid in the result (32 KiB per image).
         progress: a tqdm progress bar over the images.
+        distributed: share the images among the ranks of the initialised default process group
+            (``torch.distributed``): this process evaluates its contiguous block of them
+            (``svr.distributed.shard_indices``, without padding), then every rank's per-image
+            results are gathered in rank order, which is the single-process order. A collective:
+            every rank must call it with the same arguments; every rank returns the whole result.
+    Raises:
+        ValueError naming ``distributed`` when it is True without an initialised process group.
     """
     from torch.utils.data import DataLoader
     from tqdm.auto import tqdm
 
-    from .data.datamodule import EvalViews
+    from .data.datamodule import EvalShardSampler, EvalViews
     from .data.types import collate_batch
 
     _check_int(batch_size, "batch_size", 1)
@@ -259,7 +279,9 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
     if m.categories is not None and {c for c, _ in m.categories} != {c for c, _ in categories}:
         warnings.warn(f"the checkpoint was trained on categories {[n for _, n in m.categories]}, the data has "
                       f"{[n for _, n in categories]}", UserWarning, stacklevel=2)
-    loader = DataLoader(items, batch_size=batch_size, shuffle=False, num_workers=num_workers,
+    ranks = _distributed_ranks(distributed)
+    shard = EvalShardSampler(len(items), pad=False, rank=ranks.rank, world_size=ranks.world_size)
+    loader = DataLoader(items, batch_size=batch_size, sampler=shard, num_workers=num_workers,
                         collate_fn=collate_batch, pin_memory=m.device.type == "cuda")
     pool = None
     if protocol_workers > 0:
@@ -287,7 +309,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
 
     start = time.perf_counter()
     try:
-        with tqdm(total=len(items), desc=f"evaluate {split}", unit="img", disable=not progress) as bar:
+        with tqdm(total=len(shard), desc=f"evaluate {split}", unit="img", disable=not progress) as bar:
             for batch in loader:
                 pred = predict_sdf(m, batch.images[:, 0], batch_size=len(batch))
                 grids = [pred.final] + ([pred.coarse] if with_coarse else [])
@@ -303,20 +325,36 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
         if pool is not None:
             pool.shutdown(cancel_futures=True)
 
-    def cat(parts, dtype):
-        return np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)
+    def cat(parts, dtype, shape=()):
+        local = np.concatenate(parts).astype(dtype) if parts else np.zeros((0, *shape), dtype)
+        return gather_uneven(torch.from_numpy(local)).numpy() if ranks.world_size > 1 else local
 
-    return EvaluationResult(
+    result = EvaluationResult(
         split=split, dataset=dataset, categories=categories,
         is_nmr_shapenet=bool(categories) and all(c in NMR_CATEGORY_IDS for c, _ in categories),
         checkpoint=str(m.checkpoint) if m.checkpoint is not None else None, stage=m.stage, output=m.output_name,
         category=cat(cats, np.int64), object_index=cat(objs, np.int64), view=cat(vws, np.int64),
         iou=cat(ious, np.float64), iou_coarse=cat(ious_c, np.float64) if with_coarse else None,
-        voxels=(np.concatenate(kept) if kept else np.zeros((0, 32, 32, 32), bool)) if keep_voxels else None,
+        voxels=cat(kept, bool, (32, 32, 32)) if keep_voxels else None,
         views_per_object=len(items.views),
         full_protocol=len(items.views) == NUM_VIEWS and max_objects_per_category is None,
         seconds=time.perf_counter() - start,
     )
+    if len(result.iou) != len(items):
+        raise RuntimeError(f"gathered {len(result.iou)} per-image results for {len(items)} images")
+    return result
+
+
+def _distributed_ranks(distributed: bool) -> RankInfo:
+    """The process group's RankInfo when ``distributed``, else a single process."""
+    if not isinstance(distributed, bool):
+        raise TypeError(f"distributed must be a bool, got {type(distributed).__name__}")
+    if not distributed:
+        return RankInfo()
+    if not torch.distributed.is_available() or not torch.distributed.is_initialized():
+        raise ValueError("distributed=True needs an initialised torch.distributed process group "
+                         "(launch with torchrun or srun; the command line joins it by itself)")
+    return RankInfo.current()
 
 
 def describe_data(datamodule) -> str:
@@ -336,10 +374,11 @@ def evaluate(model: ModelLike, datamodule, split: str = "test", **kwargs) -> Eva
     ``ProceduralDataModule``; anything with ``categories`` and ``dataset(split)``).
 
     A procedural dataset is generated if missing; NMR files are converted to memory-mapped ``.npy``
-    for this split only (when the data module's ``prepare`` is on).
+    for this split only (when the data module's ``prepare`` is on). With ``distributed=True`` rank 0
+    does that while the others wait.
 
     Args:
-        kwargs: as ``evaluate_objects`` (views, batch_size, compare_coarse, ...).
+        kwargs: as ``evaluate_objects`` (views, batch_size, compare_coarse, distributed, ...).
     """
     from .data.datamodule import ProceduralDataModule
     from .data.nmr import prepare_nmr
@@ -349,11 +388,14 @@ def evaluate(model: ModelLike, datamodule, split: str = "test", **kwargs) -> Eva
     if not hasattr(datamodule, "dataset") or not hasattr(datamodule, "categories"):
         raise TypeError(f"datamodule must have categories and dataset(split) (an NMRDataModule), "
                         f"got {type(datamodule).__name__}")
-    if isinstance(datamodule, ProceduralDataModule):
-        datamodule.prepare_data()
-    elif getattr(datamodule, "prepare", False):
-        prepare_nmr(datamodule.root, getattr(datamodule, "prepared_dir", None),
-                    [c for c, _ in datamodule.categories], (split,), progress=kwargs.get("progress", True))
+    if _distributed_ranks(kwargs.get("distributed", False)).is_zero:
+        if isinstance(datamodule, ProceduralDataModule):
+            datamodule.prepare_data()
+        elif getattr(datamodule, "prepare", False):
+            prepare_nmr(datamodule.root, getattr(datamodule, "prepared_dir", None),
+                        [c for c, _ in datamodule.categories], (split,), progress=kwargs.get("progress", True))
+    if kwargs.get("distributed", False):
+        barrier()
     return evaluate_objects(model, datamodule.dataset(split), datamodule.categories, split,
                             describe_data(datamodule), **kwargs)
 
@@ -491,8 +533,32 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
 CONFIG_DIR = str(Path(__file__).resolve().parents[1] / "configs")
 
 
+DISTRIBUTED_MODES = ("auto", True, False)
+
+
+def _device_of_rank(device, ranks: RankInfo):
+    """With several processes, "auto"/"cuda" become this process's GPU (its local rank)."""
+    if ranks.world_size > 1 and str(device) in ("auto", "cuda") and torch.cuda.is_available():
+        return f"cuda:{local_rank() % torch.cuda.device_count()}"
+    return device
+
+
 def run(cfg) -> EvaluationResult:
-    """The body of ``main``: a composed configs/eval.yaml -> evaluate, print, write."""
+    """The body of ``main``: a composed configs/eval.yaml -> evaluate, print, write.
+
+    ``distributed`` ("auto", the default): join the process group that torchrun or srun describe
+    when they started several processes; each evaluates its share, rank 0 prints and writes.
+    """
+    mode = cfg.get("distributed", "auto")
+    if mode not in DISTRIBUTED_MODES:
+        raise ValueError(f"distributed must be one of {DISTRIBUTED_MODES}, got {mode!r}")
+    if mode is False:
+        return _run(cfg, RankInfo())
+    with process_group_from_environment(timeout_s=float(cfg.get("distributed_timeout_s", 4 * 3600))) as ranks:
+        return _run(cfg, ranks)
+
+
+def _run(cfg, ranks: RankInfo) -> EvaluationResult:
     from hydra.core.hydra_config import HydraConfig
     from hydra.utils import instantiate
     from omegaconf import OmegaConf
@@ -503,18 +569,24 @@ def run(cfg) -> EvaluationResult:
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
     out = cfg.get("output_dir") or HydraConfig.get().runtime.output_dir
-    folder = ensure_output_dir(out, "output_dir")  # before the long run
+    folder = ensure_output_dir(out, "output_dir") if ranks.is_zero else None  # before the long run
     datamodule = instantiate(cfg.data)
-    model = load_model(cfg.ckpt_path, cfg.get("device", "auto"))
+    model = load_model(cfg.ckpt_path, _device_of_rank(cfg.get("device", "auto"), ranks))
     views = cfg.get("views")
-    print(f"evaluating {model.checkpoint} ({model.stage} stage, {model.output_name} output) on {model.device}")
-    print(f"data: {describe_data(datamodule)}; split: {split}")
+    say = print if ranks.is_zero else (lambda *args, **kwargs: None)
+    say(f"evaluating {model.checkpoint} ({model.stage} stage, {model.output_name} output) on {model.device}"
+        + (f" and {ranks.world_size - 1} more processes" if ranks.world_size > 1 else ""))
+    say(f"data: {describe_data(datamodule)}; split: {split}")
     result = evaluate(model, datamodule, split,
                       views=None if views is None else [int(v) for v in OmegaConf.to_container(views)],
                       max_objects_per_category=cfg.get("max_objects_per_category"),
                       batch_size=int(cfg.get("batch_size", 32)), num_workers=int(cfg.get("num_workers", 0)),
                       compare_coarse=bool(cfg.get("compare_coarse", False)),
-                      protocol_workers=int(cfg.get("protocol_workers", 0)), progress=bool(cfg.get("progress", True)))
+                      protocol_workers=int(cfg.get("protocol_workers", 0)),
+                      progress=bool(cfg.get("progress", True)) and ranks.is_zero,
+                      distributed=ranks.world_size > 1)
+    if not ranks.is_zero:
+        return result
     print()
     print(format_table(result))
     files = write_report(result, folder)
@@ -530,6 +602,8 @@ def main() -> None:
     from hydra.errors import InstantiationException
     from omegaconf.errors import MissingMandatoryValue
 
+    from .distributed import launch_rank_is_zero
+
     @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
     def _main(cfg) -> None:
         try:
@@ -537,6 +611,9 @@ def main() -> None:
         except (ValueError, FileNotFoundError, OSError, MissingMandatoryValue, InstantiationException) as err:
             sys.exit(f"sdfdiff-evaluate: error: {err}")
 
+    if not launch_rank_is_zero():
+        # As Lightning does for its DDP processes: one process writes hydra's .hydra/ folder.
+        sys.argv.append("hydra.output_subdir=null")
     _main()
 
 

@@ -11,6 +11,10 @@ Run folder layout (``run_dir``)::
     <stage>/checkpoints/final.ckpt the weights at the end of the stage
     <stage>/tensorboard/, <stage>/csv/metrics.csv, <stage>/images/step_*.png
 
+Several processes (``trainer=ddp``): every process runs ``train`` with the same ``run_dir``; only
+global rank 0 writes files (config.yaml here, the rest through Lightning's rank-zero loggers,
+checkpoints and callbacks).
+
 ``ckpt_path``: a checkpoint of a stage that is in the schedule resumes that stage (weights,
 optimiser, step counters, callbacks) and runs the rest of the schedule after it; a checkpoint of
 another stage (e.g. a coarse one with ``stage=refine``) only initialises the network's weights.
@@ -30,8 +34,10 @@ from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.loggers import CSVLogger
 
 import renderer
+from mvr.outputs import write_text
 
 from .callbacks import AtomicCheckpointIO
+from .distributed import launch_rank_is_zero
 from .losses import LossWeights
 from .models.module import (CHECKPOINT_KEY, STAGES, SVRLightningModule, check_stage, load_checkpoint,
                             load_network_weights)
@@ -164,7 +170,7 @@ def build_trainer(cfg: DictConfig, stage: str, stage_dir: Path) -> pl.Trainer:
             cb.dirpath = str(stage_dir / "checkpoints")
     loggers = _instantiate_group(cfg.get("logger"), save_dir=str(stage_dir))
     for lg in loggers:
-        if isinstance(lg, CSVLogger):
+        if isinstance(lg, CSVLogger) and launch_rank_is_zero():
             keep_previous_metrics(Path(lg.log_dir))
     kwargs: dict[str, Any] = dict(
         max_steps=int(stage_cfg.max_steps),
@@ -217,7 +223,8 @@ def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg, resolve=True))
+    if launch_rank_is_zero():  # the other DDP processes run this too, in the same folder
+        write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
 
     schedule = [check_stage(str(s)) for s in cfg.stage.schedule]
     if not schedule:

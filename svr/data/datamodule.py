@@ -12,6 +12,17 @@ prediction); the validation loader can be thinned with ``val_views`` / ``val_obj
 
 Workers: the datasets hold no arrays when pickled; each worker opens the prepared ``.npy`` files
 memory-mapped, so the page cache holds one copy whatever ``num_workers``.
+
+Several processes (DDP, ``trainer=ddp``): the samplers are rank-aware. Training: every rank draws the
+same stream of an epoch (seeded by ``seed`` and the epoch) and takes every world-size-th key of it,
+so the ranks see disjoint parts of one stream, and together the keys a single process with a
+world-size-times larger batch would see (``samples_per_epoch`` counts all ranks together; the last
+``samples_per_epoch mod world size`` keys are dropped so that every rank runs the same number of
+steps). Evaluation: each rank takes one contiguous block of the (object, view) items, padded by
+wrapping around so that all ranks run the same number of batches (DDP's forward pass is a
+collective); ``SVRLightningModule`` gathers the per-image IoU and counts each image once. The
+processes of a node share the memory-mapped arrays as they share them between workers: the page
+cache holds one copy whatever the number of processes (tests/svr/test_distributed.py measures it).
 """
 from __future__ import annotations
 
@@ -22,8 +33,10 @@ from typing import Iterator, Optional, Sequence
 import numpy as np
 import pytorch_lightning as pl
 import torch
-from torch.utils.data import DataLoader, Dataset, Sampler
+from torch.utils.data import DataLoader, Dataset
+from torch.utils.data.distributed import DistributedSampler
 
+from ..distributed import RankInfo, shard_indices
 from .nmr import NUM_VIEWS, SPLITS, NMRDataset, prepare_nmr, resolve_categories
 from .procedural import (DEFAULT_SHADING, ProceduralSettings, ensure_procedural_dataset, load_shading,
                          procedural_dataset_dir)
@@ -33,22 +46,67 @@ PathLike = str | os.PathLike
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
-class ObjectViewSampler(Sampler):
+class RankShardedSampler(DistributedSampler):
+    """Base of the rank-aware samplers of this module.
+
+    It subclasses ``DistributedSampler`` so that Lightning uses it as it is: Lightning (with its
+    default ``use_distributed_sampler=True``) wraps any other sampler in a
+    ``DistributedSamplerWrapper``, which would shard it a second time and pad it with repeated
+    items. ``DistributedSampler.__init__`` is not called: it wants a dataset, and a process group
+    at construction, whereas these samplers read the ranks when they are iterated.
+
+    Args:
+        rank, world_size: this process and the number of processes; both None (the default): the
+            default process group's when the sampler is iterated or measured (Lightning initialises
+            it before it asks for the data loaders), or (0, 1) without one.
+    """
+
+    def __init__(self, rank: Optional[int] = None, world_size: Optional[int] = None):
+        RankInfo.resolve(rank, world_size)  # checks them now
+        self._rank = rank
+        self._world_size = world_size
+        self.epoch = 0
+        self.shuffle = False
+        self.drop_last = False
+
+    @property
+    def ranks(self) -> RankInfo:
+        return RankInfo.resolve(self._rank, self._world_size)
+
+    @property
+    def rank(self) -> int:  # DistributedSampler's attribute
+        return self.ranks.rank
+
+    @property
+    def num_replicas(self) -> int:  # DistributedSampler's attribute
+        return self.ranks.world_size
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = int(epoch)
+
+
+class ObjectViewSampler(RankShardedSampler):
     """Draws ``(object index, view ids)`` keys: per sample a random object (uniformly over objects,
     or over categories first with ``category_balanced``, as SoftRas's loader did), then V distinct
     random views.
 
     The stream of an epoch depends only on ``seed`` and the epoch (``set_epoch``; Lightning calls it),
-    so a resumed run draws what the original would have.
+    so a resumed run draws what the original would have. With W processes every rank draws the
+    whole stream and yields keys ``rank, rank + W, rank + 2W, ...`` of its first
+    ``W * (samples_per_epoch // W)``: disjoint parts, the same number on every rank, and together the
+    keys one process would draw.
 
     Args:
         counts: objects per category, in the dataset's order.
         views_per_sample: V (1..24).
-        samples_per_epoch: keys per epoch.
+        samples_per_epoch: keys per epoch, all ranks together.
+        rank, world_size: see ``RankShardedSampler`` (default: the process group's).
     """
 
     def __init__(self, counts: Sequence[int], views_per_sample: int = 2, samples_per_epoch: int = 1000,
-                 seed: int = 0, category_balanced: bool = False, num_views: int = NUM_VIEWS):
+                 seed: int = 0, category_balanced: bool = False, num_views: int = NUM_VIEWS,
+                 rank: Optional[int] = None, world_size: Optional[int] = None):
+        super().__init__(rank, world_size)
         self.counts = [int(c) for c in counts]
         if sum(self.counts) == 0:
             raise ValueError("the training split holds no objects")
@@ -61,15 +119,19 @@ class ObjectViewSampler(Sampler):
         self.seed = int(seed)
         self.category_balanced = bool(category_balanced)
         self.num_views = num_views
-        self.epoch = 0
 
-    def set_epoch(self, epoch: int) -> None:
-        self.epoch = int(epoch)
+    def _per_rank(self) -> tuple[RankInfo, int]:
+        ranks = self.ranks
+        if self.samples_per_epoch < ranks.world_size:
+            raise ValueError(f"samples_per_epoch ({self.samples_per_epoch}) must be at least the number of "
+                             f"processes ({ranks.world_size})")
+        return ranks, self.samples_per_epoch // ranks.world_size
 
     def __len__(self) -> int:
-        return self.samples_per_epoch
+        return self._per_rank()[1]
 
-    def __iter__(self) -> Iterator[tuple[int, tuple[int, ...]]]:
+    def stream(self) -> Iterator[tuple[int, tuple[int, ...]]]:
+        """The epoch's whole stream of ``samples_per_epoch`` keys, before sharding."""
         rng = np.random.default_rng([self.seed, self.epoch])
         offsets = np.concatenate([[0], np.cumsum(self.counts)])
         nonempty = [c for c, n in enumerate(self.counts) if n > 0]
@@ -82,6 +144,49 @@ class ObjectViewSampler(Sampler):
                 obj = int(rng.integers(total))
             views = rng.choice(self.num_views, size=self.views_per_sample, replace=False)
             yield obj, tuple(int(v) for v in views)
+
+    def __iter__(self) -> Iterator[tuple[int, tuple[int, ...]]]:
+        ranks, per_rank = self._per_rank()
+        end = per_rank * ranks.world_size
+        for i, key in enumerate(self.stream()):
+            if i >= end:
+                break
+            if i % ranks.world_size == ranks.rank:
+                yield key
+
+
+class EvalShardSampler(RankShardedSampler):
+    """This rank's items of an evaluation set (``EvalViews``): one contiguous block per rank, in
+    order (``svr.distributed.shard_indices``); one process: every item in order.
+
+    Args:
+        num_items: the set's size.
+        pad: True (for Lightning's validation and test loops): every rank gets the same number of
+            items, the last blocks wrapping around to the first items, so that all ranks run the same
+            number of batches (the DDP forward pass is a collective); whoever gathers the results
+            drops the repeats (``svr.distributed.gather_unique``). False: each item exactly once
+            (ranks may differ by one item).
+        rank, world_size: see ``RankShardedSampler``.
+    """
+
+    def __init__(self, num_items: int, pad: bool = True, rank: Optional[int] = None,
+                 world_size: Optional[int] = None):
+        super().__init__(rank, world_size)
+        if isinstance(num_items, bool) or not isinstance(num_items, int) or num_items < 0:
+            raise ValueError(f"num_items must be a non-negative int, got {num_items!r}")
+        self.num_items = num_items
+        self.pad = bool(pad)
+
+    def indices(self) -> np.ndarray:
+        """(K,) int64 item indices of this rank."""
+        ranks = self.ranks
+        return shard_indices(self.num_items, ranks.rank, ranks.world_size, self.pad)
+
+    def __len__(self) -> int:
+        return len(self.indices())
+
+    def __iter__(self) -> Iterator[int]:
+        return iter(self.indices().tolist())
 
 
 class TrainViews(Dataset):
@@ -167,7 +272,8 @@ class NMRDataModule(pl.LightningDataModule):
         batch_size: training objects per batch (B); each brings ``views_per_sample`` views.
         eval_batch_size: (object, view) items per validation/test batch.
         views_per_sample: V, distinct views per training object (SPEC: 2).
-        samples_per_epoch: training samples per epoch (default: the training images / V).
+        samples_per_epoch: training samples per epoch, all processes together (default: the training
+            images / V).
         category_balanced: draw a category first, then an object (SoftRas) instead of an object.
         val_views, val_objects_per_category: thin the validation set (default: everything).
         num_workers, pin_memory: DataLoader settings.
@@ -258,18 +364,22 @@ class NMRDataModule(pl.LightningDataModule):
                           pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0, **kwargs)
 
     def train_dataloader(self) -> DataLoader:
-        """Batches of ``batch_size`` random objects x V random views (drop_last: BatchNorm-safe)."""
+        """Batches of ``batch_size`` random objects x V random views (drop_last: BatchNorm-safe); with
+        several processes, per process (the effective batch is ``batch_size`` x processes)."""
         return self._loader(TrainViews(self.dataset("train")), self.batch_size, sampler=self.train_sampler(),
                             drop_last=len(self.train_sampler()) >= self.batch_size)
 
     def val_dataloader(self) -> DataLoader:
-        """Every (object, view) of the val split (thinned by val_views / val_objects_per_category), V = 1."""
+        """Every (object, view) of the val split (thinned by val_views / val_objects_per_category), V = 1;
+        with several processes this rank's padded block of them (``EvalShardSampler``)."""
         ds = EvalViews(self.dataset("val"), self.val_views, self.val_objects_per_category)
-        return self._loader(ds, self.eval_batch_size, shuffle=False)
+        return self._loader(ds, self.eval_batch_size, sampler=EvalShardSampler(len(ds), pad=True))
 
     def test_dataloader(self) -> DataLoader:
-        """All 24 views of every test object, V = 1 (the benchmark's predictions)."""
-        return self._loader(EvalViews(self.dataset("test")), self.eval_batch_size, shuffle=False)
+        """All 24 views of every test object, V = 1 (the benchmark's predictions); with several
+        processes this rank's padded block of them."""
+        ds = EvalViews(self.dataset("test"))
+        return self._loader(ds, self.eval_batch_size, sampler=EvalShardSampler(len(ds), pad=True))
 
 
 class ProceduralDataModule(NMRDataModule):
@@ -316,4 +426,5 @@ class ProceduralDataModule(NMRDataModule):
         return super().dataset(split)
 
 
-__all__ = ["ObjectViewSampler", "TrainViews", "EvalViews", "NMRDataModule", "ProceduralDataModule"]
+__all__ = ["RankShardedSampler", "ObjectViewSampler", "EvalShardSampler", "TrainViews", "EvalViews", "NMRDataModule",
+           "ProceduralDataModule"]

@@ -9,9 +9,15 @@ Stages:
 * ``joint``: all three, loss on the refined SDF.
 
 Robustness: a non-finite prediction, loss or gradient never reaches the weights. The step is
-skipped (every gradient dropped before the optimiser sees it, which works the same under
-distributed training), a warning is issued and ``train/skipped_steps`` counts them (also kept in
-the checkpoint).
+skipped (every gradient dropped before the optimiser sees it), a warning is issued and
+``train/skipped_steps`` counts them (also kept in the checkpoint). Under distributed training the
+ranks agree: a step that is not finite on one rank is skipped on all of them (gradients are
+averaged after the loss, so a non-finite gradient already is everyone's), so the weights stay
+equal across ranks.
+
+Several processes: training metrics are averaged over the ranks (``sync_dist``); validation
+gathers every rank's per-image IoU and counts each image once (the evaluation samplers pad the
+ranks' shares to equal sizes), so ``val/iou`` is the single-process number on every rank.
 """
 from __future__ import annotations
 
@@ -24,6 +30,7 @@ import torch
 import renderer
 
 from ..data.types import SVRBatch
+from ..distributed import gather_unique
 from ..losses import LossTerms, LossWeights, image_loss, total_loss
 from ..metrics import iou_direct, iou_table
 from .network import SVRNet
@@ -108,6 +115,7 @@ class SVRLightningModule(pl.LightningModule):
         self._val_iou: list[torch.Tensor] = []
         self._val_iou_coarse: list[torch.Tensor] = []
         self._val_category: list[torch.Tensor] = []
+        self._val_key: list[torch.Tensor] = []
         self.apply_stage()
 
     # ------------------------------------------------------------------ stages
@@ -189,18 +197,26 @@ class SVRLightningModule(pl.LightningModule):
         images = batch.images[:, 0]
         coarse, refined = self.predict_sdf(images)
         sdf = refined if refined is not None else coarse
+        terms, why = None, None
         if not bool(torch.isfinite(sdf.detach()).all()):
-            loss = self._skip("the predicted SDF is not finite")
-            terms = None
+            why = "the predicted SDF is not finite"
         else:
             terms = self.compute_loss(batch, sdf)
+            if not bool(torch.isfinite(terms.total.detach())):
+                why = f"the loss is not finite ({float(terms.total.detach())})"
+        if self._trainer is not None and self.trainer.world_size > 1:
+            # Every rank must skip together, or the ranks' weights part (and their logging calls,
+            # collectives with sync_dist, no longer match).
+            if self.trainer.strategy.reduce_boolean_decision(why is not None, all=False) and why is None:
+                why = "the step is not finite on another process"
+        if why is not None:
+            loss, terms = self._skip(why), None
+        else:
             loss = terms.total
-            if not bool(torch.isfinite(loss.detach())):
-                loss = self._skip(f"the loss is not finite ({float(loss.detach())})")
         bs = len(batch)
-        if terms is not None and not self._skip_this_step:
+        if terms is not None:
             for name, value in terms.as_dict().items():
-                self.log(f"train/{name}", value.detach(), batch_size=bs, prog_bar=name == "total")
+                self.log(f"train/{name}", value.detach(), batch_size=bs, prog_bar=name == "total", sync_dist=True)
         return loss
 
     def on_train_batch_end(self, outputs: Any, batch: SVRBatch, batch_idx: int) -> None:
@@ -233,7 +249,7 @@ class SVRLightningModule(pl.LightningModule):
 
     # ------------------------------------------------------------------ validation
     def on_validation_epoch_start(self) -> None:
-        self._val_iou, self._val_iou_coarse, self._val_category = [], [], []
+        self._val_iou, self._val_iou_coarse, self._val_category, self._val_key = [], [], [], []
 
     def validation_step(self, batch: SVRBatch, batch_idx: int) -> None:
         """Fast direct IoU (``svr.metrics.iou_direct``) of the stage's output and of the coarse SDF,
@@ -245,17 +261,28 @@ class SVRLightningModule(pl.LightningModule):
         self._val_iou.append(iou)
         self._val_iou_coarse.append(iou_c)
         self._val_category.append(batch.category.to(self.device))
+        # What identifies an image across ranks: (category, object, view).
+        self._val_key.append(torch.stack([batch.category, batch.object_index, batch.view_ids[:, 0]], 1)
+                             .long().to(self.device))
 
     def on_validation_epoch_end(self) -> None:
-        if not self._val_iou:
+        distributed = self.trainer.world_size > 1
+        if not self._val_iou and not distributed:
             return
-        iou = torch.cat(self._val_iou)
-        iou_c = torch.cat(self._val_iou_coarse)
-        cat = torch.cat(self._val_category)
-        if self.trainer.world_size > 1:
-            iou, iou_c, cat = (self.all_gather(t).reshape(-1) for t in (iou, iou_c, cat))
+        def joined(parts: list[torch.Tensor], *shape: int, dtype=torch.float32) -> torch.Tensor:
+            return torch.cat(parts) if parts else torch.zeros(0, *shape, dtype=dtype, device=self.device)
+
+        iou, iou_c, cat = joined(self._val_iou), joined(self._val_iou_coarse), joined(self._val_category,
+                                                                                     dtype=torch.long)
+        if distributed:
+            # Every rank calls this (a collective) even with nothing to add; shares may differ in
+            # size, and an image two ranks scored (padding) counts once.
+            _, iou, iou_c, cat = gather_unique(joined(self._val_key, 3, dtype=torch.long), iou, iou_c, cat)
+            if not len(iou):
+                return
         mean, per_cat = _category_mean(iou, cat, self.categories)
         self.log("val/iou", mean, prog_bar=True, sync_dist=False)
+        self.log("val/images", float(len(iou)), sync_dist=False)  # what the means are over
         self.log("val/iou_coarse", _category_mean(iou_c, cat, self.categories)[0], sync_dist=False)
         for name, value in per_cat.items():
             self.log(f"val/iou_{name}", value, sync_dist=False)
