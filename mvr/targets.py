@@ -119,8 +119,12 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     if suffix not in MESH_FORMATS:
         raise ValueError(f"target mesh file {str(p)!r} has an unsupported format {suffix or '(none)'!r}; "
                          f"expected one of {', '.join(MESH_FORMATS)}")
+    if p.is_dir():
+        raise ValueError(f"target mesh file {str(p)!r} is a directory, not a mesh file")
     if not p.is_file():
         raise FileNotFoundError(f"target mesh file not found: {str(p)!r}")
+    if p.stat().st_size == 0:
+        raise ValueError(f"target mesh file {str(p)!r} is empty (0 bytes)")
     try:
         mesh = trimesh.load(str(p), force="mesh", process=True)
     except Exception as exc:  # trimesh raises many types for malformed files

@@ -15,6 +15,7 @@ from .grid import SDFGrid
 from .render import RenderOutput, render, shade_trace
 from .scene import EFFECTS, DirectionalLight, PointLight, Scene
 from .settings import TraceSettings
+from .kernels import start_cpu_thread_pool
 from .trace import TraceResult, sphere_trace
 
 __all__ = [
@@ -30,4 +31,5 @@ __all__ = [
     "sphere_trace",
     "render",
     "shade_trace",
+    "start_cpu_thread_pool",
 ]

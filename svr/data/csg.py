@@ -23,6 +23,12 @@ import numba
 import numpy as np
 import torch
 
+import renderer
+
+# The parallel kernels below share numba's process-wide thread pool with the renderer's march,
+# which must start it itself (its layer cannot change later; renderer.start_cpu_thread_pool says why).
+renderer.start_cpu_thread_pool()
+
 # Primitive kinds (column 0) and their parameters (columns 14..18), in the primitive's local frame:
 BOX = 0       # half extents a, b, c along x, y, z; edge rounding radius d
 SPHERE = 1    # radius a

@@ -43,3 +43,22 @@ def test_overrides_and_bad_values():
         reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "optim.lr=-1"]))
     with pytest.raises(ConfigCompositionException):
         compose_config(["target=torus", "mvr/noise=loud"])
+
+
+def test_configure_runtime_starts_the_renderers_thread_pool():
+    """configure_runtime sets numba's thread count, which starts numba's pool: in a fresh process
+    it must be the pool the renderer's kernels choose (workqueue), not numba's default (GNU
+    OpenMP, whose spinning workers slow the PyTorch code after each march)."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import json, numba\nfrom mvr import configure_runtime\nconfigure_runtime(threads=2)\n"
+            "print(json.dumps(numba.threading_layer()))\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_THREADING_LAYER", "NUMBA_DISABLE_JIT")}
+    out = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[2], env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == "workqueue"

@@ -85,6 +85,18 @@ def test_bad_mesh_files(tmp_path):
     garbage.write_bytes(b"\x00\x01 not a mesh")
     with pytest.raises(ValueError, match="garbage.off"):
         make_target(str(garbage))
+    folder = tmp_path / "folder.obj"
+    folder.mkdir()
+    with pytest.raises(ValueError, match=r"folder\.obj.*directory"):
+        make_target(str(folder))
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".off", ".stl", ".glb"])
+def test_zero_byte_mesh_files_are_called_empty(tmp_path, suffix):
+    path = tmp_path / f"nothing{suffix}"
+    path.write_bytes(b"")
+    with pytest.raises(ValueError, match=rf"nothing\{suffix}.*empty"):
+        load_mesh(path)
 
 
 def test_bad_target_specs():

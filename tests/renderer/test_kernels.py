@@ -358,6 +358,31 @@ def test_march_leaves_no_autograd_graph():
     assert not any(v.requires_grad for v in out.values())
 
 
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_kernel_reads_the_tensors_without_copies(dtype, monkeypatch):
+    """The CPU kernel gets numpy views of the grid values and of the (contiguous, right-dtype) rays,
+    and writes its results straight into the returned tensors. (Origins broadcast from one eye per
+    camera, as ``Cameras.rays`` gives them, are materialised once: the kernel reads one per ray.)"""
+    grid = SDFGrid(_grid(sphere_sdf(0.5), 8, dtype).values.requires_grad_(True))
+    o, d, gi, pix = camera_rays(grid, _look([[0.0, 0.0, 3.0]], size=4, dtype=dtype))
+    rays = (o.contiguous(), d, gi, pix)
+    seen = {}
+    launch = kernels._launch_cpu
+
+    def spy(tensors):
+        seen["arrays"] = [x.numpy() for x in tensors]
+        seen["ptrs"] = [x.data_ptr() for x in tensors]
+        launch(tensors)
+
+    monkeypatch.setattr(kernels, "_launch_cpu", spy)
+    out = kernels.march("cpu", grid, *rays, TraceSettings())
+    values, _, _, origins, directions, grid_index, pixel_angle = seen["ptrs"][:7]
+    assert values == grid.values.data_ptr()
+    assert (origins, directions, grid_index, pixel_angle) == tuple(x.data_ptr() for x in rays)
+    assert seen["ptrs"][7] == out["t"].data_ptr() and seen["ptrs"][9] == out["extreme"].data_ptr()
+    assert all(a.ctypes.data == p for a, p in zip(seen["arrays"], seen["ptrs"]))
+
+
 def test_empty_ray_batch():
     grid = _grid(sphere_sdf(0.5), 8, torch.float64)
     empty = torch.zeros(0, 3, dtype=torch.float64)
@@ -585,3 +610,41 @@ def test_sampling_at_fixed_points_has_the_autograd_gradient(dtype):
     assert torch.equal(grads[0][0], grads[1][0])
     tol = dict(rtol=1e-5, atol=1e-5) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-12)
     torch.testing.assert_close(grads[0][1], grads[1][1], **tol)
+
+
+# ---------------------------------------------------------------------------- thread pool
+POOL_SCRIPT = r"""
+import json, threading, torch, numba
+from renderer import SDFGrid, Cameras, sphere_trace
+grid = SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 16)
+cams = Cameras.look_at([[0.3, 0.2, 3.0]], fov_deg=40, image_size=48)
+first = sphere_trace(grid, cams, backend="cpu")
+results, errors = [], []
+def work():
+    try:
+        for _ in range(5):
+            results.append(sphere_trace(grid, cams, backend="cpu"))
+    except Exception as exc:
+        errors.append(repr(exc))
+threads = [threading.Thread(target=work) for _ in range(4)]
+for t in threads: t.start()
+for t in threads: t.join()
+same = all(torch.equal(r.t, first.t) and torch.equal(r.hit, first.hit) for r in results)
+print(json.dumps({"layer": numba.threading_layer(), "runs": len(results), "same": same, "errors": errors}))
+"""
+
+
+@pytest.mark.parametrize("chosen", [None, "omp"])
+def test_thread_pool_layer_and_concurrent_calls(chosen):
+    """In a fresh process the kernel starts numba's pool on the "workqueue" layer (GNU OpenMP's
+    busy-waiting workers slowed the PyTorch code after each march ~40x on a shared machine),
+    unless the user chose a layer; calls from several Python threads at once (which that layer
+    does not allow) are serialised and give the same result."""
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_DISABLE_JIT", "NUMBA_THREADING_LAYER")}
+    if chosen:
+        env["NUMBA_THREADING_LAYER"] = chosen
+    out = subprocess.run([sys.executable, "-c", POOL_SCRIPT], cwd=ROOT, env=env, capture_output=True, text=True,
+                         timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    assert res == {"layer": chosen or "workqueue", "runs": 20, "same": True, "errors": []}, res

@@ -320,3 +320,18 @@ def test_cache_is_reused_and_generation_is_atomic(tiny_procedural, tmp_path, mon
         procedural.ensure_procedural_dataset(tmp_path, small, progress=False)
     assert list(tmp_path.iterdir()) == []
     assert settings.key() != small.key() and len(settings.key()) == 12
+
+
+def test_data_generation_leaves_numba_on_the_renderers_thread_pool():
+    """The procedural renders run numba parallel kernels before any render: they must not start
+    numba's pool on torch's spinning OpenMP layer (renderer.start_cpu_thread_pool)."""
+    import subprocess
+    import sys
+
+    code = ("import numba, numpy as np, torch\n"
+            "from svr.data.procedural import make_shape, render_shape\n"
+            "render_shape(make_shape('mug', 0), supersample=1)\n"
+            "print(numba.threading_layer())\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "workqueue"
