@@ -3,6 +3,14 @@ differentiable render (forward + backward), in one run.
 
     python benchmarks/bench_renderer.py            # full run, writes docs/bench_renderer.md
     python benchmarks/bench_renderer.py --quick    # fewer repeats (a smoke run)
+    python benchmarks/bench_renderer.py --torch-threads 0 --out docs/bench_renderer_torch_all.md
+
+Threads: numba uses every core (the fused kernel is parallel); torch uses one thread unless
+``--torch-threads`` says otherwise (0: torch's default, every core). On the shared 2-core machine
+this was measured on, torch's OpenMP workers busy-wait for each other while other jobs hold the
+cores, which made the reference march (a long chain of PyTorch ops) 5-35x slower and its timings
+erratic; one thread is the reference's fastest and steadiest setting there (and what
+``python -m mvr`` uses), so the comparison does not flatter the fused kernel.
 
 Scenes: B grids of 64^3 (a torus, its radii varied a little per grid), one camera per grid at
 distance 2.5 from a random direction, 40 degree field of view (the torus fills part of the
@@ -164,10 +172,13 @@ def measure_memory(cfg: Config, backend: str) -> dict[str, float | str]:
     return {"peak_mib": (peak - before) / 1024.0, "method": method}
 
 
-def memory_in_subprocess(cfg: Config, backend: str, threads: int | None) -> dict[str, float | str]:
+def memory_in_subprocess(cfg: Config, backend: str, threads: int | None,
+                         torch_threads: int | None = None) -> dict[str, float | str]:
     cmd = [sys.executable, __file__, "--memory-probe", f"{cfg.image},{cfg.batch},{cfg.grid}", backend]
     if threads:
         cmd += ["--threads", str(threads)]
+    if torch_threads is not None:
+        cmd += ["--torch-threads", str(torch_threads)]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=ROOT)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -205,9 +216,13 @@ def cpu_table(rows: list[tuple[Config, dict]]) -> str:
 def machine() -> str:
     import numba
 
+    def threads(n: int) -> str:
+        return f"{n} thread{'s' if n != 1 else ''}"
+
     return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
-            f"torch {torch.__version__} ({torch.get_num_threads()} threads), numba {numba.__version__} "
-            f"({numba.get_num_threads()} threads), Python {platform.python_version()}")
+            f"torch {torch.__version__} ({threads(torch.get_num_threads())}), numba {numba.__version__} "
+            f"({threads(numba.get_num_threads())}, {numba.threading_layer()} threading layer), "
+            f"Python {platform.python_version()}")
 
 
 def write_atomic(path: Path, text: str) -> None:
@@ -231,6 +246,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="markdown file for the table (default docs/bench_renderer.md)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--threads", type=int, default=None, help="torch and numba threads (default: all)")
+    parser.add_argument("--torch-threads", type=int, default=None,
+                        help="torch threads (default: --threads if given, else 1; 0: torch's default)")
     parser.add_argument("--memory-probe", nargs=2, metavar=("IMAGE,BATCH,GRID", "BACKEND"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.repeats is not None and args.repeats < 1:
@@ -242,6 +259,12 @@ def main(argv: list[str] | None = None) -> None:
 
         torch.set_num_threads(args.threads)
         numba.set_num_threads(args.threads)
+    if args.torch_threads is None:
+        args.torch_threads = args.threads or 1
+    if args.torch_threads < 0:
+        raise ValueError(f"--torch-threads must be 0 (torch's default) or more, got {args.torch_threads}")
+    if args.torch_threads > 0:
+        torch.set_num_threads(args.torch_threads)
     if args.memory_probe:
         image, batch, grid = (int(x) for x in args.memory_probe[0].split(","))
         print(json.dumps(measure_memory(Config(image, batch, grid), args.memory_probe[1])))
@@ -256,7 +279,7 @@ def main(argv: list[str] | None = None) -> None:
         print(f"timing {cfg.name} ...", file=sys.stderr, flush=True)
         row = time_config(cfg, repeats)
         for backend in MARCHES:
-            mem = memory_in_subprocess(cfg, backend, args.threads)
+            mem = memory_in_subprocess(cfg, backend, args.threads, args.torch_threads)
             row[f"mem_{backend}"] = float(mem["peak_mib"])
             row["mem_method"] = mem["method"]
         rows.append((cfg, row))
@@ -267,9 +290,10 @@ def main(argv: list[str] | None = None) -> None:
     print(f"load average (1 min) before/after: {load_before[0]:.1f} / {load_after[0]:.1f}", file=sys.stderr)
     if not args.no_write:
         method = rows[0][1]["mem_method"]
+        command = " ".join(["python benchmarks/bench_renderer.py", *(argv if argv is not None else sys.argv[1:])])
         doc = (
             "# Renderer benchmark\n\n"
-            "Made by `python benchmarks/bench_renderer.py` (medians of "
+            f"Made by `{command}` (medians of "
             f"{repeats} timed run{'s' if repeats > 1 else ''} after a warm-up; see the script's docstring "
             "for the scenes).\n\n"
             f"Machine: {machine()}; 1-minute load average {load_before[0]:.1f} before the run and "
