@@ -1,0 +1,184 @@
+"""What accuracy costs in time: the study behind docs/accuracy_vs_time.md, in one command.
+
+    python -m benchmarks.study                          # all parts, ~20 min on 2 CPU cores
+    python -m benchmarks.study --parts mvr,svr          # rerun some parts; the others' last results stay
+    python -m benchmarks.study --quick                  # toy sizes (a minute): checks the code paths
+    python -m benchmarks.study --parts svr --svr-steps 2000,500   # a longer training budget
+    python -m benchmarks.study --report-only            # reassemble the report from the kept sections
+
+Three parts, each a table, a plot (Pareto front marked, default highlighted) and a reading:
+
+* renderer (benchmarks/study_renderer.py): hit threshold, maximum steps, intersection mode, grid and
+  image resolution, effects: image error against a high-accuracy render, and time per frame, on the
+  fused CPU kernel (and on CUDA where it runs: a second section);
+* mvr (benchmarks/study_mvr.py): multi-view reconstruction error against time for the schedule;
+* svr (benchmarks/study_svr.py): validation IoU against training time for the model width, the
+  refiner and the supervised views.
+
+Each part's section is kept in ``<work>/sections/<part>.md`` (with ``<part>.json``: when and how
+long it ran), so ``--parts`` reruns some parts and the report is assembled from the latest of each.
+The plots go to ``<docs>/study_*.png``, the report to ``<docs>/accuracy_vs_time.md``. A ``--quick``
+run writes to outputs/study_quick/ unless ``--docs`` says otherwise, so it never replaces the
+real report.
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+from pathlib import Path
+from typing import Optional, Sequence
+
+from benchmarks.report import atomic_write_text, load_average, machine_info, progress_log, timed
+
+ROOT = Path(__file__).resolve().parents[1]
+PARTS = ("renderer", "mvr", "svr")
+REPORT = "accuracy_vs_time.md"
+TITLES = {"renderer": "Renderer", "mvr": "Multi-view reconstruction", "svr": "Single-view reconstruction"}
+COMMANDS = {"renderer": "--parts renderer", "mvr": "--parts mvr", "svr": "--parts svr"}
+
+
+def parse_parts(text: str) -> tuple[str, ...]:
+    """``"renderer,mvr"`` -> ("renderer", "mvr"), in the study's order; ValueError names unknown parts."""
+    parts = [p.strip() for p in text.split(",") if p.strip()]
+    unknown = [p for p in parts if p not in PARTS]
+    if unknown or not parts:
+        raise ValueError(f"parts must be a comma-separated subset of {','.join(PARTS)}, got {text!r}")
+    return tuple(p for p in PARTS if p in parts)
+
+
+def renderer_devices(cuda: bool = True) -> tuple[str, ...]:
+    """The renderer part's devices: the CPU, and CUDA where ``cuda`` and its fused kernel runs."""
+    if not cuda:
+        return ("cpu",)
+    from renderer import kernels
+
+    return ("cpu", "cuda") if kernels.available("cuda")[0] else ("cpu",)
+
+
+def run_part(part: str, docs: Path, work: Path, quick: bool, cuda: bool, svr_steps: Optional[tuple[int, int]],
+             progress: bool) -> str:
+    """Runs one part; returns its markdown section (its plots are written into ``docs``)."""
+    if part == "renderer":
+        from benchmarks import study_renderer
+
+        return "\n".join(study_renderer.run(docs, quick=quick, device=d, progress=progress)
+                         for d in renderer_devices(cuda))
+    if part == "mvr":
+        from benchmarks import study_mvr
+
+        return study_mvr.run(docs, work, quick=quick, progress=progress)
+    if part == "svr":
+        from benchmarks import study_svr
+
+        return study_svr.run(docs, work, quick=quick, steps=svr_steps, progress=progress)
+    raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+
+
+def run_parts(parts: Sequence[str], docs: Path, work: Path, quick: bool = False, cuda: bool = True,
+              svr_steps: Optional[tuple[int, int]] = None, progress: bool = True) -> Path:
+    """Runs the given parts (keeping each section and its timing under ``work/sections``), then
+    writes the report from the latest section of every part. Returns the report's path."""
+    log = progress_log(progress, indent="")
+    sections = work / "sections"
+    for part in parts:
+        log(f"study: {part}")
+        load_before = load_average()
+        t = timed(lambda: run_part(part, docs, work, quick, cuda, svr_steps, progress))
+        atomic_write_text(sections / f"{part}.md", t.result)
+        atomic_write_text(sections / f"{part}.json", json.dumps({
+            "finished": datetime.datetime.now().isoformat(timespec="seconds"), "wall_s": t.wall, "cpu_s": t.cpu,
+            "load_before": load_before, "load_after": load_average(), "quick": quick}, indent=2) + "\n")
+        log(f"study: {part} took {t.wall:.0f} s wall, {t.cpu:.0f} s CPU")
+    return write_report(docs, work)
+
+
+def write_report(docs: Path, work: Path) -> Path:
+    """Assembles ``docs/accuracy_vs_time.md`` from the sections kept under ``work/sections`` (a
+    banner says so when any of them comes from a ``--quick`` run)."""
+    sections = work / "sections"
+    rows, bodies, quick = [], [], False
+    for part in PARTS:
+        md, meta = sections / f"{part}.md", sections / f"{part}.json"
+        if md.is_file() and meta.is_file():
+            m = json.loads(meta.read_text())
+            quick = quick or bool(m.get("quick"))
+            rows.append(f"| {TITLES[part]} | {m['finished']} | {m['wall_s']:.0f} | {m['cpu_s']:.0f} | "
+                        f"{m['load_before']} | {m['load_after']} |")
+            bodies.append(md.read_text())
+        else:
+            rows.append(f"| {TITLES[part]} | not run | | | | |")
+            bodies.append(f"## {TITLES[part]}\n\nNot run yet: `python -m benchmarks.study {COMMANDS[part]}`.\n")
+    text = "\n".join([
+        "# Accuracy against time",
+        "",
+        "What each setting costs and what it buys, measured on one machine: the renderer's march and "
+        "intersection settings, resolutions and effects; the multi-view reconstruction schedule; the "
+        "single-view network, refiner and supervision. Regenerate with "
+        "`python -m benchmarks.study` (all parts, about 20 minutes on 2 CPU cores) or some parts with "
+        "`--parts renderer,mvr,svr` (the report keeps the other parts' latest results).",
+        "",
+        *(["**This holds `--quick` results: toy sizes that only check the code paths; their numbers mean "
+            "nothing.**", ""] if quick else []),
+        "How to read it: each section has a table (one row per setting; *Pareto* marks the settings that no "
+        "other setting beats in both time and error), a plot of error against time (the Pareto front joined in "
+        "blue, the default as a red star) and a reading computed from the numbers (so it stays true when the "
+        "study is rerun). Times are CPU seconds of a single-threaded process (torch and numba at 1 thread), "
+        "which on an idle core equals the wall time; the wall times are listed too. The machine is shared "
+        "with other jobs (the load averages below, on 2 cores), so wall times are noisy and even CPU times "
+        "carry some noise (cache and memory contention): treat differences under ~20 % as noise.",
+        "",
+        "Contents: [Renderer](#renderer), [Multi-view reconstruction](#multi-view-reconstruction), "
+        "[Single-view reconstruction](#single-view-reconstruction), [Machine](#machine).",
+        "",
+        "| part | finished | wall s | CPU s | load before (1 / 5 / 15 min) | load after |",
+        "|---|---|---|---|---|---|",
+        *rows,
+        "",
+        *bodies,
+        "## Machine",
+        "",
+        machine_info(),
+        "",
+    ])
+    path = docs / REPORT
+    atomic_write_text(path, text)
+    return path
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated subset of {','.join(PARTS)}")
+    ap.add_argument("--quick", action="store_true", help="toy sizes: checks the code paths in about a minute")
+    ap.add_argument("--docs", type=Path, default=None,
+                    help="where the report and plots go (default: docs; with --quick: outputs/study_quick)")
+    ap.add_argument("--work", type=Path, default=None,
+                    help="run folders, dataset cache, kept sections (default: outputs/study[_quick]/work)")
+    ap.add_argument("--no-cuda", action="store_true",
+                    help="renderer part on the CPU only (default: also on CUDA where its kernel runs)")
+    ap.add_argument("--svr-steps", default=None, help="coarse,refine training steps per run (default 200,100)")
+    ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="run nothing: rewrite the report from the sections kept under --work")
+    args = ap.parse_args(argv)
+    try:
+        parts = parse_parts(args.parts)
+        from benchmarks.study_svr import parse_steps
+
+        svr_steps = parse_steps(args.svr_steps)
+    except ValueError as exc:
+        ap.error(str(exc))
+    docs = args.docs or ROOT / ("outputs/study_quick" if args.quick else "docs")
+    work = args.work or ROOT / ("outputs/study_quick/work" if args.quick else "outputs/study/work")
+    if args.report_only:
+        print(f"wrote {write_report(docs, work)}")
+        return
+    from mvr import configure_runtime
+
+    configure_runtime(threads=args.threads)
+    path = run_parts(parts, docs, work, args.quick, not args.no_cuda, svr_steps)
+    print(f"wrote {path}")
+
+
+if __name__ == "__main__":
+    main()
