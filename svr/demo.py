@@ -117,6 +117,7 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
     import renderer
 
     from .geometry import sdf_to_mesh
+    from .infer import predict_sdf
 
     net.eval()
     coarse_net.eval()
@@ -130,8 +131,8 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
         obj = int(dataset.offsets[c])
         for v in views:
             image = dataset.views(obj, [v])  # (1, 4, 64, 64)
-            final = net(image).final
-            coarse = coarse_net(image, refine=False).coarse
+            final = predict_sdf(net, image).final  # what the evaluation scored
+            coarse = predict_sdf(coarse_net, image, refine=False).coarse
             hs = net.half_side
             shots = []
             for sdf, view in ((coarse, v), (final, v), (final, v + 6), (final, v + 12)):

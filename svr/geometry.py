@@ -48,6 +48,43 @@ def sdf_to_mesh(values, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0, l
     return trimesh.Trimesh(vertices=verts, faces=faces, process=True)
 
 
+# Objects are normalised into [-0.5, 0.5]^3 (longest side 1), where the outermost benchmark voxel
+# centres lie. A quarter voxel (1/31) beyond them keeps those centres inside and stays within the
+# benchmark's 32^3 grid (``u = 31 v + 16 < 32``), whose voxeliser drops geometry outside it.
+OBJECT_BOX_HALF = 0.5 + 0.25 / 31
+
+
+def clip_to_box(values: torch.Tensor, bbox_min: BoundLike, bbox_max: BoundLike,
+                half: float = OBJECT_BOX_HALF) -> torch.Tensor:
+    """The SDF of the shape intersected with the cube ``[-half, half]^3``: ``max(sdf, box sdf)``.
+
+    Why: a predicted surface that pokes out of the benchmark's voxel grid is cut open there by the
+    benchmark voxeliser (it drops what lies outside), and its 6-connected fill from the border then
+    leaks into the shape and leaves the inside empty. Intersecting the prediction with the box the
+    objects are normalised into closes such shapes at the box instead. Inside the cube the values
+    are unchanged.
+
+    Args:
+        values: (B, Nx, Ny, Nz) or (Nx, Ny, Nz) SDF samples (renderer.SDFGrid layout, world units)
+            over the box ``[bbox_min, bbox_max]`` (scalars or 3-vectors).
+        half: the cube's half side (world units).
+    Returns:
+        a tensor like ``values`` (same shape, dtype and device).
+    """
+    if not isinstance(values, torch.Tensor) or values.ndim not in (3, 4) or not values.is_floating_point():
+        raise ValueError(f"values must be a floating-point (B, Nx, Ny, Nz) or (Nx, Ny, Nz) tensor, got "
+                         f"{getattr(values, 'shape', type(values).__name__)}")
+    if not float(half) > 0:
+        raise ValueError(f"half must be positive, got {half!r}")
+    lo = torch.as_tensor(bbox_min, dtype=values.dtype, device=values.device).expand(3)
+    hi = torch.as_tensor(bbox_max, dtype=values.dtype, device=values.device).expand(3)
+    axes = [torch.linspace(float(lo[a]), float(hi[a]), values.shape[-3 + a], dtype=values.dtype,
+                           device=values.device) for a in range(3)]
+    q = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).abs() - float(half)
+    box = q.clamp(min=0).norm(dim=-1) + q.amax(-1).clamp(max=0)
+    return torch.maximum(values, box)
+
+
 # ---------------------------------------------------------------------------------------------
 # The NMR ShapeNet voxel frame and the benchmark's mesh voxelisation (SPEC section 5).
 #

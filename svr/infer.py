@@ -210,7 +210,7 @@ def check_images(images: torch.Tensor, image_size: int = 64, name: str = "images
 
 @torch.no_grad()
 def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
-                refine: Optional[bool] = None) -> SVRPrediction:
+                refine: Optional[bool] = None, clip: bool = True) -> SVRPrediction:
     """The network's coarse and (unless the model is a coarse-stage one) refined SDFs.
 
     Args:
@@ -218,6 +218,9 @@ def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
         images: (B, 4, 64, 64) float RGBA in [0, 1], RGB on white (as the datasets give them).
         batch_size: images per forward pass.
         refine: run the refiner (default: ``model.uses_refiner``).
+        clip: intersect the shapes with the cube the objects are normalised into
+            (``svr.geometry.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
+            output of this module and ``svr.evaluate`` goes through it.
     Returns:
         SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32
         on the model's device, over the box ``[-half_side, half_side]^3`` (world units).
@@ -234,7 +237,15 @@ def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
         coarse.append(out.coarse)
         if out.refined is not None:
             refined.append(out.refined)
-    return SVRPrediction(coarse=torch.cat(coarse), refined=torch.cat(refined) if use_refiner else None)
+    coarse_t = torch.cat(coarse)
+    refined_t = torch.cat(refined) if use_refiner else None
+    if clip:
+        from .geometry import clip_to_box
+
+        hs = m.half_side
+        coarse_t = clip_to_box(coarse_t, -hs, hs)
+        refined_t = clip_to_box(refined_t, -hs, hs) if refined_t is not None else None
+    return SVRPrediction(coarse=coarse_t, refined=refined_t)
 
 
 def predict(model: ModelLike, images: torch.Tensor, batch_size: int = 64,

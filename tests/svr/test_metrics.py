@@ -302,3 +302,30 @@ def test_bad_input_is_refused():
         voxelize_mesh_nmr(np.zeros((3, 3)), np.array([[0, 1, 3]]))
     with pytest.raises(ValueError, match="vertices must have shape"):
         voxelize_mesh_nmr(np.zeros((3, 2)), np.array([[0, 1, 2]]))
+
+
+def _cuboid_sdf(p: torch.Tensor, half) -> torch.Tensor:
+    q = p.abs() - torch.tensor(half, dtype=p.dtype)
+    return q.clamp(min=0).norm(dim=-1) + q.amax(-1).clamp(max=0)
+
+
+def test_clipping_to_the_object_box_keeps_shapes_that_reach_past_the_benchmark_grid_solid():
+    from svr.geometry import clip_to_box, nmr_voxel_centres
+
+    n, hs = 64, 0.6
+    axis = torch.linspace(-hs, hs, n, dtype=torch.float64)
+    p = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1)
+    bar = _cuboid_sdf(p, (0.57, 0.2, 0.25))  # longer than the benchmark grid along x
+    gt = _cuboid_sdf(nmr_voxel_centres(dtype=torch.float64), (0.57, 0.2, 0.25)) < 0
+    open_shell = voxels_protocol(bar, -hs, hs)[0]
+    closed = voxels_protocol(clip_to_box(bar, -hs, hs), -hs, hs)[0]
+    # Unclipped, the voxeliser drops the ends outside its grid and the fill leaks inside.
+    assert float(voxel_iou(open_shell, gt)) < 0.2 < 0.8 < float(voxel_iou(closed, gt))
+    # A shape inside the box is untouched: same values near and inside it, same voxels.
+    ball = p.norm(dim=-1) - 0.3
+    clipped = clip_to_box(ball, -hs, hs)
+    near = (p.abs() <= 0.5).all(-1) & (ball > -0.2)
+    assert torch.equal(clipped[near], ball[near])
+    assert torch.equal(voxels_protocol(clipped, -hs, hs), voxels_protocol(ball, -hs, hs))
+    with pytest.raises(ValueError, match="values"):
+        clip_to_box(torch.zeros(4, 4), -hs, hs)
