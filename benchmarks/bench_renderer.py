@@ -38,7 +38,6 @@ import platform
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +49,7 @@ import torch  # noqa: E402
 
 import renderer  # noqa: E402
 import renderer.kernels  # noqa: E402
+from mvr.outputs import write_text  # noqa: E402
 from renderer import Cameras, Scene, SDFGrid, render, sphere_trace  # noqa: E402
 
 
@@ -225,19 +225,6 @@ def machine() -> str:
             f"Python {platform.python_version()}")
 
 
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
-
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="one timed repeat per measurement")
@@ -309,7 +296,7 @@ def main(argv: list[str] | None = None) -> None:
             f"- peak mem: the peak extra resident memory of one forward + backward in a fresh process "
             f"({method}; see the script's docstring).\n"
         )
-        write_atomic(args.out, doc)
+        write_text(args.out, doc)
         print(f"wrote {args.out}", file=sys.stderr)
 
 
