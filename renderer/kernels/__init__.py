@@ -28,9 +28,10 @@ from ..reference import TINY_DIRECTION, min_threshold
 from ..settings import TraceSettings
 
 FUSED_BACKENDS = ("cpu", "cuda")
-# Rays per chunk handed to a CPU thread: rays differ a lot in cost (misses leave at once, grazing
-# rays crawl), so threads take small chunks dynamically instead of one static half each.
-CPU_CHUNK = 256
+# Blocks of rays (raymarch.BLOCK each) per chunk handed to a CPU thread: rays differ a lot in cost
+# (misses leave at once, grazing rays crawl), so threads take small chunks dynamically instead of
+# one static half each.
+CPU_CHUNK_BLOCKS = 2
 CUDA_THREADS_PER_BLOCK = 128
 _CPU_LAUNCH_LOCK = threading.Lock()
 
@@ -236,7 +237,7 @@ def _launch_cpu(tensors: list[torch.Tensor]) -> None:
     arrays = [x.numpy() for x in tensors]  # views: the kernel writes the output tensors in place
     # One kernel at a time: numba's workqueue pool (see _start_thread_pool) aborts the process on
     # concurrent launches from several Python threads.
-    with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK):
+    with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK_BLOCKS):
         _load_march().march_rays_cpu(*arrays)
 
 
