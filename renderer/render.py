@@ -8,7 +8,7 @@ import torch
 
 from .cameras import Cameras
 from .grid import SDFGrid
-from .reference import box_interval, min_threshold
+from .reference import min_threshold
 from .scene import Scene
 from .settings import TraceSettings
 from .shading import hit_points_conservative, shade_lambert, soft_silhouette, surface_normals
@@ -104,10 +104,9 @@ def shade_trace(grid: SDFGrid, cameras: Cameras, trace: TraceResult, scene: Scen
         foot = trace.t_extreme.reshape(-1) * cams.pixel_angle[ray_cam]
         foot = torch.clamp(foot, min=min_threshold(grid))
         sil = soft_silhouette(grid, x, trace.grid_index[ray_cam], foot, scene.silhouette_sigma)
-        # Rays that never enter the grid's box see nothing (the SDF is undefined outside it).
-        t_near, t_far = box_interval(trace.origins.reshape(-1, 3), trace.directions.reshape(-1, 3),
-                                     grid.bbox_min, grid.bbox_max)
-        entered = t_far >= torch.clamp(t_near, min=0.0)
+        # Rays that never enter the grid's box see nothing (the SDF is undefined outside it): they
+        # are the rays the march took no sample on (every march samples a ray that enters).
+        entered = trace.steps.reshape(-1) > 0
         silhouette = torch.where(entered, sil, torch.zeros_like(sil)).reshape(b, h, w)
 
     return RenderOutput(hit=trace.hit, depth=depth, normal=normal, silhouette=silhouette, image=image,

@@ -562,8 +562,10 @@ def _gradient_per_corner(grid: SDFGrid, points: torch.Tensor, b: torch.Tensor) -
 @pytest.mark.parametrize("dtype", DTYPES)
 @pytest.mark.parametrize("res", [(2, 2, 2), (5, 7, 9), (2, 6, 3), (12, 12, 12)])
 def test_vectorised_normal_stencil_matches_the_per_corner_formula(res, dtype):
-    """Same values bit for bit (faces, edges, corners of the box, points outside it, N = 2), and
-    the same gradients w.r.t. the grid values and the points."""
+    """Same values to rounding (faces, edges, corners of the box, points outside it, N = 2), and
+    the same gradients w.r.t. the grid values and the points. (The fast path sums in another
+    order and multiplies by inverse spacings: equal to a few ulps, not bit for bit; a wrong
+    stencil index would be off by O(1).)"""
     gen = torch.Generator().manual_seed(sum(res))
     values = torch.randn(2, *res, generator=gen, dtype=torch.float64).to(dtype)
     pts = torch.rand(400, 3, generator=gen, dtype=torch.float64).to(dtype) * 2.6 - 1.3
@@ -578,10 +580,13 @@ def test_vectorised_normal_stencil_matches_the_per_corner_formula(res, dtype):
         (out * torch.tensor([0.3, -1.0, 2.0], dtype=dtype)).sin().sum().backward()
         results.append((out.detach(), v.grad, p.grad))
     (fast, dv_fast, dp_fast), (plain, dv_plain, dp_plain) = results
-    assert torch.equal(fast, plain)
+    exact = dict(rtol=1e-6, atol=1e-5) if dtype == torch.float32 else dict(rtol=1e-14, atol=1e-13)
+    torch.testing.assert_close(fast, plain, **exact)
     tol = dict(rtol=1e-5, atol=1e-4) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-11)
     torch.testing.assert_close(dv_fast, dv_plain, **tol)
-    torch.testing.assert_close(dp_fast, dp_plain, **tol)
+    # d/dp of the gradient is a sum of large terms of both signs: float32 rounding scales with them.
+    scale = float(dp_plain.abs().max())
+    torch.testing.assert_close(dp_fast, dp_plain, rtol=tol["rtol"], atol=tol["atol"] * max(1.0, scale / 10))
 
 
 def test_shared_gradient_buffer_gives_the_plain_gradients():
