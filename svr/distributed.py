@@ -274,6 +274,12 @@ def process_group_from_environment(backend: str = "gloo", timeout_s: float = 180
                             timeout=datetime.timedelta(seconds=timeout_s))
     try:
         yield RankInfo.current()
+        # Every rank waits here for the slowest before tearing down. Gloo's worker threads drop
+        # their last references to a finished collective's tensors after the caller has woken up,
+        # and that needs the GIL: a rank that went on straight to interpreter shutdown could be
+        # aborted ("terminate called without an active exception") while a worker still waited
+        # for it. The barrier's wait releases the GIL and lets the workers finish first.
+        dist.barrier()
     finally:
         dist.destroy_process_group()
 
