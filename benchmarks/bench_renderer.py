@@ -4,6 +4,7 @@ differentiable render (forward + backward), in one run.
     python benchmarks/bench_renderer.py            # full run, writes docs/bench_renderer.md
     python benchmarks/bench_renderer.py --quick    # fewer repeats (a smoke run)
     python benchmarks/bench_renderer.py --torch-threads 0 --out docs/bench_renderer_torch_all.md
+    python benchmarks/bench_renderer.py --device cuda   # on a GPU: writes docs/bench_renderer_cuda.md
 
 Threads: numba uses every core (the fused kernel is parallel); torch uses one thread unless
 ``--torch-threads`` says otherwise (0: torch's default, every core). On the shared 2-core machine
@@ -21,6 +22,12 @@ What is timed (medians over the repeats, after one warm-up that also loads the c
 - march: ``renderer.sphere_trace`` (ray generation + the no-gradient march) per backend;
 - render f+b: ``renderer.render`` + a scalar loss over image, silhouette and depth + ``backward()``
   into the grid values, once with each march.
+
+``--device cuda`` times the same calls on the GPU (the reference march on CUDA tensors against the
+fused CUDA kernel, each call ended by ``torch.cuda.synchronize()``), adds the fused CPU march of
+the same host on the same scenes for the CUDA-vs-CPU ratio, and one larger config (512^2, B = 16)
+where the GPU has enough rays to fill it. Memory there is the peak extra GPU memory of one
+forward + backward (``torch.cuda.max_memory_allocated``), measured in the timing process.
 
 Memory: each (config, march) runs once more in a fresh subprocess that builds the scene, warms up
 on a tiny image, resets the kernel's peak-RSS counter (``/proc/self/clear_refs``), runs one
@@ -71,7 +78,14 @@ class Config:
 
 
 CONFIGS = (Config(64, 32), Config(128, 8), Config(256, 8))
-MARCHES = ("reference", "cpu")
+CUDA_CONFIGS = CONFIGS + (Config(512, 16),)
+# What each column times: (label, march backend on the benchmark's device). On CUDA the fused CPU
+# march of the same host is timed too ("host"), for the CUDA-vs-CPU ratio.
+MARCHES = ("reference", "fused")
+
+
+def fused_backend(device: torch.device) -> str:
+    return "cuda" if device.type == "cuda" else "cpu"
 
 
 def torus_grids(batch: int, n: int, seed: int = 0) -> torch.Tensor:
@@ -102,6 +116,15 @@ def forward_backward(values: torch.Tensor, cams: Cameras, backend: str) -> None:
     out = render(SDFGrid(v), cams, Scene(), backend=backend)
     loss = out.image.mean() + out.silhouette.mean() + out.depth.mean()
     loss.backward()
+    if v.is_cuda:
+        torch.cuda.synchronize(v.device)  # the timers read the host clock
+
+
+def trace_synced(grid: SDFGrid, cams: Cameras, backend: str) -> None:
+    """``sphere_trace`` with every backend; on a GPU, waits for the march to finish."""
+    sphere_trace(grid, cams, backend=backend)
+    if grid.device.type == "cuda":
+        torch.cuda.synchronize(grid.device)
 
 
 def median_times_ms(fns: dict, repeats: int) -> dict[str, float]:
@@ -126,18 +149,38 @@ def median_times_ms(fns: dict, repeats: int) -> dict[str, float]:
     return out
 
 
-def time_config(cfg: Config, repeats: int) -> dict[str, float]:
+def time_config(cfg: Config, repeats: int, device: torch.device = torch.device("cpu")) -> dict[str, float]:
+    """Medians (ms) of the march and of forward + backward per column of ``MARCHES`` on ``device``
+    (on CUDA also the fused CPU march of the host, "host"), with hit fraction and mean steps."""
     values, cams = scene_for(cfg)
-    grid = SDFGrid(values)
+    runs = {"reference": (device, "reference"), "fused": (device, fused_backend(device))}
+    if device.type == "cuda":
+        runs["host"] = (torch.device("cpu"), "cpu")
     fns = {}
-    for backend in MARCHES:
-        fns[f"march_{backend}"] = lambda backend=backend: sphere_trace(grid, cams, backend=backend)
-        fns[f"render_{backend}"] = lambda backend=backend: forward_backward(values, cams, backend)
+    for label, (dev, backend) in runs.items():
+        v = values.to(dev)
+        grid = SDFGrid(v)
+        fns[f"march_{label}"] = lambda grid=grid, backend=backend: trace_synced(grid, cams, backend)
+        fns[f"render_{label}"] = lambda v=v, backend=backend: forward_backward(v, cams, backend)
     row = median_times_ms(fns, repeats)
-    trace = sphere_trace(grid, cams, backend="cpu")
+    trace = sphere_trace(SDFGrid(values.to(device)), cams, backend=fused_backend(device))
     row["hit_fraction"] = float(trace.hit.float().mean())
     row["mean_steps"] = float(trace.steps.float().mean())
     return row
+
+
+def measure_cuda_memory(cfg: Config, backend: str, device: torch.device) -> dict[str, float | str]:
+    """Peak extra GPU memory (MiB) of one forward + backward: what the caching allocator handed out
+    beyond what was allocated before it."""
+    values, cams = scene_for(cfg)
+    values = values.to(device)
+    forward_backward(values, cams, backend)  # warm-up: kernels loaded, workspaces made
+    torch.cuda.synchronize(device)
+    torch.cuda.reset_peak_memory_stats(device)
+    before = torch.cuda.memory_allocated(device)
+    forward_backward(values, cams, backend)
+    return {"peak_mib": (torch.cuda.max_memory_allocated(device) - before) / 2**20,
+            "method": "torch.cuda.max_memory_allocated"}
 
 
 # ---------------------------------------------------------------------------- memory (subprocess)
@@ -193,9 +236,26 @@ def table(rows: list[tuple[Config, dict]]) -> str:
     for cfg, r in rows:
         lines.append(
             f"| {cfg.name} | {cfg.rays} | {100 * r['hit_fraction']:.0f}% | {r['march_reference']:.1f} "
-            f"| {r['march_cpu']:.1f} | {r['march_reference'] / r['march_cpu']:.1f}x "
-            f"| {cfg.rays / (r['march_cpu'] / 1e3):.3g} | {r['render_reference']:.1f} | {r['render_cpu']:.1f} "
-            f"| {r['render_reference'] / r['render_cpu']:.1f}x | {r['mem_reference']:.0f} | {r['mem_cpu']:.0f} |")
+            f"| {r['march_fused']:.1f} | {r['march_reference'] / r['march_fused']:.1f}x "
+            f"| {cfg.rays / (r['march_fused'] / 1e3):.3g} | {r['render_reference']:.1f} | {r['render_fused']:.1f} "
+            f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['mem_reference']:.0f} | {r['mem_fused']:.0f} |")
+    return "\n".join(lines)
+
+
+def cuda_table(rows: list[tuple[Config, dict]]) -> str:
+    """The GPU table: reference and fused march on CUDA, and the host's fused CPU march."""
+    head = ("| config | rays | hits | march ref CUDA (ms) | march fused CUDA (ms) | speed-up | fused CUDA rays/s "
+            "| march fused CPU (ms) | CUDA vs CPU | f+b ref CUDA (ms) | f+b fused CUDA (ms) | speed-up "
+            "| f+b fused CPU (ms) | CUDA vs CPU | peak GPU mem f+b ref / fused (MiB) |")
+    lines = [head, "|" + "---|" * (head.count("|") - 1)]
+    for cfg, r in rows:
+        lines.append(
+            f"| {cfg.name} | {cfg.rays} | {100 * r['hit_fraction']:.0f}% | {r['march_reference']:.2f} "
+            f"| {r['march_fused']:.2f} | {r['march_reference'] / r['march_fused']:.1f}x "
+            f"| {cfg.rays / (r['march_fused'] / 1e3):.3g} | {r['march_host']:.1f} "
+            f"| {r['march_host'] / r['march_fused']:.1f}x | {r['render_reference']:.2f} | {r['render_fused']:.2f} "
+            f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['render_host']:.1f} "
+            f"| {r['render_host'] / r['render_fused']:.1f}x | {r['mem_reference']:.0f} / {r['mem_fused']:.0f} |")
     return "\n".join(lines)
 
 
@@ -207,19 +267,30 @@ def cpu_table(rows: list[tuple[Config, dict]]) -> str:
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
-            f"| {cfg.name} | {r['march_reference_cpu']:.1f} | {r['march_cpu_cpu']:.1f} "
-            f"| {r['march_reference_cpu'] / r['march_cpu_cpu']:.1f}x | {r['render_reference_cpu']:.1f} "
-            f"| {r['render_cpu_cpu']:.1f} | {r['render_reference_cpu'] / r['render_cpu_cpu']:.1f}x |")
+            f"| {cfg.name} | {r['march_reference_cpu']:.1f} | {r['march_fused_cpu']:.1f} "
+            f"| {r['march_reference_cpu'] / r['march_fused_cpu']:.1f}x | {r['render_reference_cpu']:.1f} "
+            f"| {r['render_fused_cpu']:.1f} | {r['render_reference_cpu'] / r['render_fused_cpu']:.1f}x |")
     return "\n".join(lines)
 
 
-def machine() -> str:
+def machine(device: torch.device = torch.device("cpu")) -> str:
     import numba
 
     def threads(n: int) -> str:
         return f"{n} thread{'s' if n != 1 else ''}"
 
-    return (f"{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
+    gpu = ""
+    if device.type == "cuda":
+        from importlib import metadata
+
+        try:  # the NVIDIA package that numba's CUDA target now lives in; older numbas bundle it
+            numba_cuda = f"numba-cuda {metadata.version('numba-cuda')}"
+        except metadata.PackageNotFoundError:
+            numba_cuda = "numba's bundled CUDA target"
+        cc = torch.cuda.get_device_capability(device)
+        gpu = (f"GPU {torch.cuda.get_device_name(device)} (compute capability {cc[0]}.{cc[1]}, "
+               f"CUDA {torch.version.cuda}, {numba_cuda}), ")
+    return (f"{gpu}{platform.processor() or platform.machine()}, {os.cpu_count()} logical CPUs, "
             f"torch {torch.__version__} ({threads(torch.get_num_threads())}), numba {numba.__version__} "
             f"({threads(numba.get_num_threads())}, {numba.threading_layer()} threading layer), "
             f"Python {platform.python_version()}")
@@ -229,8 +300,12 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="one timed repeat per measurement")
     parser.add_argument("--repeats", type=int, default=None, help="timed repeats per measurement (default 5)")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "bench_renderer.md",
-                        help="markdown file for the table (default docs/bench_renderer.md)")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                        help="where the grids live: cpu (reference vs fused CPU march) or cuda (reference "
+                             "on CUDA vs the fused CUDA march, plus the host's fused CPU march)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="markdown file for the table (default docs/bench_renderer.md, "
+                             "docs/bench_renderer_cuda.md with --device cuda)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--threads", type=int, default=None, help="torch and numba threads (default: all)")
     parser.add_argument("--torch-threads", type=int, default=None,
@@ -256,28 +331,40 @@ def main(argv: list[str] | None = None) -> None:
         image, batch, grid = (int(x) for x in args.memory_probe[0].split(","))
         print(json.dumps(measure_memory(Config(image, batch, grid), args.memory_probe[1])))
         return
-    ok, why = renderer.kernels.available("cpu")
-    if not ok:
-        raise SystemExit(f"the fused CPU march is unavailable: {why}")
+    device = torch.device(args.device)
+    for backend in ("cpu", fused_backend(device)):
+        ok, why = renderer.kernels.available(backend)
+        if not ok:
+            raise SystemExit(f"--device {args.device}: the fused {backend} march is unavailable: {why}")
     repeats = args.repeats or (1 if args.quick else 5)
     load_before = os.getloadavg()
     rows = []
-    for cfg in CONFIGS:
+    for cfg in CUDA_CONFIGS if device.type == "cuda" else CONFIGS:
         print(f"timing {cfg.name} ...", file=sys.stderr, flush=True)
-        row = time_config(cfg, repeats)
-        for backend in MARCHES:
-            mem = memory_in_subprocess(cfg, backend, args.threads, args.torch_threads)
-            row[f"mem_{backend}"] = float(mem["peak_mib"])
+        row = time_config(cfg, repeats, device)
+        for label in MARCHES:
+            backend = "reference" if label == "reference" else fused_backend(device)
+            if device.type == "cuda":
+                mem = measure_cuda_memory(cfg, backend, device)
+            else:
+                mem = memory_in_subprocess(cfg, backend, args.threads, args.torch_threads)
+            row[f"mem_{label}"] = float(mem["peak_mib"])
             row["mem_method"] = mem["method"]
         rows.append((cfg, row))
     load_after = os.getloadavg()
+    if device.type == "cuda":
+        print(cuda_table(rows))
+        if not args.no_write:
+            write_cuda_report(args.out or ROOT / "docs" / "bench_renderer_cuda.md", rows, repeats, argv, device)
+        return
     text = table(rows)
     text_cpu = cpu_table(rows)
     print(text + "\n\n" + text_cpu)
     print(f"load average (1 min) before/after: {load_before[0]:.1f} / {load_after[0]:.1f}", file=sys.stderr)
     if not args.no_write:
+        args.out = args.out or ROOT / "docs" / "bench_renderer.md"
         method = rows[0][1]["mem_method"]
-        command = " ".join(["python benchmarks/bench_renderer.py", *(argv if argv is not None else sys.argv[1:])])
+        command = _command(argv)
         doc = (
             "# Renderer benchmark\n\n"
             f"Made by `{command}` (medians of "
@@ -298,6 +385,30 @@ def main(argv: list[str] | None = None) -> None:
         )
         write_text(args.out, doc)
         print(f"wrote {args.out}", file=sys.stderr)
+
+
+def _command(argv: list[str] | None) -> str:
+    return " ".join(["python benchmarks/bench_renderer.py", *(argv if argv is not None else sys.argv[1:])])
+
+
+def write_cuda_report(path: Path, rows: list[tuple[Config, dict]], repeats: int, argv: list[str] | None,
+                      device: torch.device) -> None:
+    doc = (
+        "# Renderer benchmark on a GPU\n\n"
+        f"Made by `{_command(argv)}` (medians of {repeats} timed run{'s' if repeats > 1 else ''} after a "
+        "warm-up, each call ended by `torch.cuda.synchronize()`; see the script's docstring for the scenes).\n\n"
+        f"Machine: {machine(device)}.\n\n"
+        + cuda_table(rows) + "\n\n"
+        "- march: `renderer.sphere_trace` (rays + the no-gradient march): ref = the vectorised-PyTorch reference "
+        "on CUDA tensors, fused CUDA = the numba CUDA kernel (renderer/kernels/), fused CPU = the numba CPU "
+        "kernel on the same host's cores, on the same scenes.\n"
+        "- f+b: `renderer.render` with the default Scene plus `backward()` into the grid values; the stage-2 "
+        "(PyTorch) part is the same code in every column, on the GPU for the CUDA columns.\n"
+        "- peak GPU mem: the peak extra GPU memory of one forward + backward (torch.cuda.max_memory_allocated "
+        "beyond what was allocated before it).\n"
+    )
+    write_text(path, doc)
+    print(f"wrote {path}", file=sys.stderr)
 
 
 if __name__ == "__main__":

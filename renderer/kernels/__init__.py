@@ -128,7 +128,29 @@ def available(backend: str) -> tuple[bool, str]:
             return False, "numba's CUDA target finds no usable GPU or driver"
     except Exception as exc:
         return False, f"numba's CUDA target failed ({type(exc).__name__}: {exc})"
+    try:
+        _march_one_ray_on_gpu()
+    except Exception as exc:  # e.g. a numba-cuda release that does not build against this numpy
+        return False, f"numba's CUDA target cannot build or run the march ({type(exc).__name__}: {exc})"
     return True, ""
+
+
+def _march_one_ray_on_gpu() -> None:
+    """Marches one ray into an 8^3 sphere grid (radius 0.5) on the current GPU (float32): the kernel
+    is compiled (or loaded from the disk cache) and run, so a CUDA toolchain that cannot build it is
+    found here, where ``backend="auto"`` can still fall back, rather than in the first render. The
+    ray from z = 3 down the axis must hit near t = 2.5."""
+    dev = torch.device("cuda", torch.cuda.current_device())
+    axis = torch.linspace(-1.0, 1.0, 8, device=dev)
+    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
+    grid = SDFGrid(((x * x + y * y + z * z).sqrt() - 0.5)[None])
+    origin = torch.tensor([[0.0, 0.0, 3.0]], device=dev)
+    direction = torch.tensor([[0.0, 0.0, -1.0]], device=dev)
+    out = _run("cuda", grid, origin, direction, torch.zeros(1, dtype=torch.int64, device=dev),
+               torch.full((1,), 1e-3, device=dev), TraceSettings())
+    hit, t = bool(out["hit"][0]), float(out["t"][0])
+    if not hit or abs(t - 2.5) > 0.1:
+        raise RuntimeError(f"a ray into a sphere grid came back wrong (hit={hit}, t={t:.4f}, expected t~2.5)")
 
 
 def _params(grid: SDFGrid, settings: TraceSettings) -> tuple[torch.Tensor, torch.Tensor]:
@@ -208,7 +230,13 @@ def march(
         raise RuntimeError(f"backend={backend!r} is not available: {why}")
     if (backend == "cuda") != (grid.device.type == "cuda"):
         raise ValueError(f"backend={backend!r} cannot march a grid on device {grid.device}")
-    r = _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings)
+    _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings)
+    return _run(backend, grid, origins, directions, grid_index, pixel_angle, settings)
+
+
+def _run(backend, grid, origins, directions, grid_index, pixel_angle, settings) -> dict[str, torch.Tensor]:
+    """``march`` past its checks: packs the inputs, launches the kernel, returns its outputs."""
+    r = origins.shape[0]
     dt, dev = grid.dtype, grid.device
     values = grid.values.detach().contiguous().reshape(-1)  # a view: no copy of a contiguous grid
     params, iparams = _params(grid, settings)

@@ -75,7 +75,9 @@ def test_in_memory_api(tiny_run):
     both = predict_sdf(model, images)
     assert both.refined is not None and torch.allclose(both.refined, grid.values, atol=1e-5)
     assert not torch.allclose(both.coarse, both.refined)  # the tiny run trained the refiner
-    assert torch.allclose(predict(tiny_run.checkpoint, images[:1]).values, grid.values[:1], atol=1e-5)  # a path
+    from_path = predict(tiny_run.checkpoint, images[:1]).values  # a path: loaded onto the "auto" device
+    tol = 1e-5 if from_path.device.type == "cpu" else 1e-3  # a GPU's convolutions may run in TF32
+    assert torch.allclose(from_path.cpu(), grid.values[:1], atol=tol)
     assert torch.allclose(predict(model.net, images[:1]).values, grid.values[:1], atol=1e-5)  # a bare SVRNet
     recs = reconstruct(model, images[:2], views=[0], render_size=24)
     assert all(r.watertight for r in recs)
