@@ -184,8 +184,7 @@ class SDFGrid:
         vox = self.voxel_size
         spans = torch.cat([(2 - low.to(dt)) * vox, (2 - high.to(dt)) * vox], dim=1)  # (K, 6): bit 0, bit 1
         inv_span = (1 / spans).index_select(1, tables["span"])
-        shared = getattr(self, "_shared", None)
-        source, sink = shared if shared is not None else (self.values.reshape(-1), None)
+        source, sink = self._source_and_sink()
         grad = _StencilGradient.apply(source, vertex, w, inv_span, tables, sink)
         return grad.reshape(*shape, 3)
 
@@ -231,9 +230,15 @@ class SDFGrid:
         if w.requires_grad or not (torch.is_grad_enabled() and self.values.requires_grad):
             return _lerp_corners(self._gather(corners), w)
         # Fixed points (the traced ones): a backward for the values alone, one pass.
-        shared = getattr(self, "_shared", None)
-        source, sink = shared if shared is not None else (self.values.reshape(-1), None)
+        source, sink = self._source_and_sink()
         return _TrilinearAtFixedPoints.apply(source, corners, w, sink)
+
+    def _source_and_sink(self) -> tuple[torch.Tensor, "_GradientSink | None"]:
+        """What the custom gathers read and where their backward scatters: on a grid from
+        ``_with_shared_gradient`` its proxy of the flat values and the shared sink, else the flat
+        values themselves and no sink (each backward makes its own gradient)."""
+        shared = getattr(self, "_shared", None)
+        return shared if shared is not None else (self.values.reshape(-1), None)
 
     def _gather(self, index: torch.Tensor) -> torch.Tensor:
         """The flat grid values at a long index of any shape, differentiable w.r.t. the values.
@@ -383,6 +388,16 @@ def _weights_derivative(e: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return torch.stack([dx, dy, dz], dim=1)
 
 
+def _scatter_gradient(index: torch.Tensor, contrib: torch.Tensor, numel: int,
+                      sink: "_GradientSink | None") -> torch.Tensor | None:
+    """A custom gather's backward onto the flat values (numel,): ``contrib`` added at ``index``,
+    into the shared ``sink`` (then None: the sink hands the sum on) or into a fresh gradient."""
+    if sink is not None:
+        sink.add(index, contrib, numel)
+        return None
+    return torch.zeros(numel, dtype=contrib.dtype, device=contrib.device).index_add_(0, index, contrib)
+
+
 class _StencilGradient(torch.autograd.Function):
     """The normal construction of ``SDFGrid.sample_gradient`` with a backward written out, as
     2-D products with the constant tables of ``_stencil_tables`` (column e = 3 * corner + axis).
@@ -414,12 +429,7 @@ class _StencilGradient(torch.autograd.Function):
         grad_source = grad_w = None
         if ctx.needs_input_grad[0]:
             contrib = (weight24 * grad24 * inv_span) @ tables["diff_t"]
-            index = vertex.reshape(-1)
-            if ctx.sink is not None:
-                ctx.sink.add(index, contrib.reshape(-1), ctx.numel)
-            else:
-                grad_source = torch.zeros(ctx.numel, dtype=grad.dtype, device=grad.device)
-                grad_source.index_add_(0, index, contrib.reshape(-1))
+            grad_source = _scatter_gradient(vertex.reshape(-1), contrib.reshape(-1), ctx.numel, ctx.sink)
         if ctx.needs_input_grad[2]:
             grad_w = _weights_derivative((d * grad24) @ tables["corner_sum"], w)
         return grad_source, None, grad_w, None, None, None
@@ -441,12 +451,7 @@ class _TrilinearAtFixedPoints(torch.autograd.Function):
     def backward(ctx, grad: torch.Tensor):
         corners, w = ctx.saved_tensors
         contrib = _corner_weights(w, grad).reshape(-1)
-        index = corners.reshape(-1)
-        if ctx.sink is not None:
-            ctx.sink.add(index, contrib, ctx.numel)
-            return None, None, None, None
-        full = torch.zeros(ctx.numel, dtype=grad.dtype, device=grad.device)
-        return full.index_add_(0, index, contrib), None, None, None
+        return _scatter_gradient(corners.reshape(-1), contrib, ctx.numel, ctx.sink), None, None, None
 
 
 class _GradientSink:
