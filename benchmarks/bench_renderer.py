@@ -79,13 +79,15 @@ class Config:
 
 CONFIGS = (Config(64, 32), Config(128, 8), Config(256, 8))
 CUDA_CONFIGS = CONFIGS + (Config(512, 16),)
-# What each column times: (label, march backend on the benchmark's device). On CUDA the fused CPU
-# march of the same host is timed too ("host"), for the CUDA-vs-CPU ratio.
-MARCHES = ("reference", "fused")
-
-
 def fused_backend(device: torch.device) -> str:
     return "cuda" if device.type == "cuda" else "cpu"
+
+
+def march_backends(device: torch.device) -> dict[str, str]:
+    """The march backend behind each column label ("reference", "fused") on ``device``. On CUDA the
+    fused CPU march of the same host is timed too ("host", in ``time_config``), for the CUDA-vs-CPU
+    ratio."""
+    return {"reference": "reference", "fused": fused_backend(device)}
 
 
 def torus_grids(batch: int, n: int, seed: int = 0) -> torch.Tensor:
@@ -150,10 +152,10 @@ def median_times_ms(fns: dict, repeats: int) -> dict[str, float]:
 
 
 def time_config(cfg: Config, repeats: int, device: torch.device = torch.device("cpu")) -> dict[str, float]:
-    """Medians (ms) of the march and of forward + backward per column of ``MARCHES`` on ``device``
+    """Medians (ms) of the march and of forward + backward per column of ``march_backends`` on ``device``
     (on CUDA also the fused CPU march of the host, "host"), with hit fraction and mean steps."""
     values, cams = scene_for(cfg)
-    runs = {"reference": (device, "reference"), "fused": (device, fused_backend(device))}
+    runs = {label: (device, backend) for label, backend in march_backends(device).items()}
     if device.type == "cuda":
         runs["host"] = (torch.device("cpu"), "cpu")
     fns = {}
@@ -227,6 +229,14 @@ def memory_in_subprocess(cfg: Config, backend: str, threads: int | None,
 
 
 # ---------------------------------------------------------------------------- report
+def _march_cells(cfg: Config, r: dict, digits: int) -> str:
+    """A row's leading cells, shared by both wall-clock tables: config, rays, hits, the two march
+    times (``digits`` decimals), the speed-up and the fused march's rays/s."""
+    return (f"| {cfg.name} | {cfg.rays} | {100 * r['hit_fraction']:.0f}% | {r['march_reference']:.{digits}f} "
+            f"| {r['march_fused']:.{digits}f} | {r['march_reference'] / r['march_fused']:.1f}x "
+            f"| {cfg.rays / (r['march_fused'] / 1e3):.3g}")
+
+
 def table(rows: list[tuple[Config, dict]]) -> str:
     """The wall-clock table (medians), with speed-ups and peak memory."""
     head = ("| config | rays | hits | march ref (ms) | march fused (ms) | march speed-up | fused rays/s "
@@ -235,9 +245,7 @@ def table(rows: list[tuple[Config, dict]]) -> str:
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
-            f"| {cfg.name} | {cfg.rays} | {100 * r['hit_fraction']:.0f}% | {r['march_reference']:.1f} "
-            f"| {r['march_fused']:.1f} | {r['march_reference'] / r['march_fused']:.1f}x "
-            f"| {cfg.rays / (r['march_fused'] / 1e3):.3g} | {r['render_reference']:.1f} | {r['render_fused']:.1f} "
+            _march_cells(cfg, r, 1) + f" | {r['render_reference']:.1f} | {r['render_fused']:.1f} "
             f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['mem_reference']:.0f} | {r['mem_fused']:.0f} |")
     return "\n".join(lines)
 
@@ -250,9 +258,7 @@ def cuda_table(rows: list[tuple[Config, dict]]) -> str:
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
-            f"| {cfg.name} | {cfg.rays} | {100 * r['hit_fraction']:.0f}% | {r['march_reference']:.2f} "
-            f"| {r['march_fused']:.2f} | {r['march_reference'] / r['march_fused']:.1f}x "
-            f"| {cfg.rays / (r['march_fused'] / 1e3):.3g} | {r['march_host']:.1f} "
+            _march_cells(cfg, r, 2) + f" | {r['march_host']:.1f} "
             f"| {r['march_host'] / r['march_fused']:.1f}x | {r['render_reference']:.2f} | {r['render_fused']:.2f} "
             f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['render_host']:.1f} "
             f"| {r['render_host'] / r['render_fused']:.1f}x | {r['mem_reference']:.0f} / {r['mem_fused']:.0f} |")
@@ -342,8 +348,7 @@ def main(argv: list[str] | None = None) -> None:
     for cfg in CUDA_CONFIGS if device.type == "cuda" else CONFIGS:
         print(f"timing {cfg.name} ...", file=sys.stderr, flush=True)
         row = time_config(cfg, repeats, device)
-        for label in MARCHES:
-            backend = "reference" if label == "reference" else fused_backend(device)
+        for label, backend in march_backends(device).items():
             if device.type == "cuda":
                 mem = measure_cuda_memory(cfg, backend, device)
             else:
