@@ -1,16 +1,20 @@
 """Generates the procedural single-view dataset in the NMR ShapeNet layout.
 
-    python data/make_procedural.py [--cache-dir data/cache | --out DIR] [--train 32 --val 4 --test 6]
-                                   [--categories chair mug ...] [--seed 0] [--supersample 4]
-                                   [--voxel-rule centre|protocol]
+    python data/make_procedural.py [--preset demo|bench] [--cache-dir data/cache | --out DIR]
+                                   [--train N --val N --test N] [--categories chair mug ...] [--seed 0]
+                                   [--supersample 3] [--voxel-rule protocol|centre] [--workers N]
 
-With --cache-dir (the default, ``data/cache``) the dataset goes to
-``<cache-dir>/procedural-<hash of the settings>`` and is reused if it exists, exactly as the
-``data=procedural`` data module does on first use; --out writes a fresh folder. Prints the folder.
+``--preset`` takes the sizes and settings of ``data=procedural`` (demo, the default) or
+``data=procedural_bench`` (configs/data/*.yaml); the other options override them. With --cache-dir
+(the default, ``data/cache``) the dataset goes to ``<cache-dir>/procedural-<hash of the settings>``,
+exactly where the data module of the same settings looks, and is reused if it exists; --out writes
+a fresh folder. A killed generation continues where it stopped when the same command runs again.
+Prints the folder, the time and the size on disk.
 """
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -18,38 +22,77 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from svr.data.procedural import (PROCEDURAL_CATEGORIES, ProceduralSettings,  # noqa: E402
+from svr.data.procedural import (ALL_CATEGORIES, VOXEL_RULES, ProceduralSettings,  # noqa: E402
                                  ensure_procedural_dataset, generate_procedural_dataset)
+
+PRESETS = {"demo": "procedural.yaml", "bench": "procedural_bench.yaml"}
+
+
+def preset_settings(name: str) -> dict:
+    """The dataset settings of a data preset (configs/data/<file>, its defaults list followed)."""
+    from omegaconf import OmegaConf
+
+    def load(file: str) -> dict:
+        cfg = OmegaConf.to_container(OmegaConf.load(REPO / "configs" / "data" / file))
+        merged: dict = {}
+        for parent in cfg.pop("defaults", []):
+            if parent != "_self_":
+                merged.update(load(f"{parent}.yaml"))
+        merged.update(cfg)
+        return merged
+
+    cfg = load(PRESETS[name])
+    return {"categories": cfg["categories"] or (), "train": cfg["train"], "val": cfg["val"], "test": cfg["test"],
+            "seed": cfg["data_seed"], "supersample": cfg["supersample"], "voxel_rule": cfg["voxel_rule"]}
+
+
+def folder_bytes(path: Path) -> int:
+    return sum(f.stat().st_size for f in path.iterdir() if f.is_file())
 
 
 def main(argv: list[str] | None = None) -> int:
-    defaults = ProceduralSettings()
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--preset", choices=sorted(PRESETS), default="demo",
+                        help="start from data=procedural (demo) or data=procedural_bench (bench)")
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--cache-dir", default=str(REPO / "data" / "cache"))
     where.add_argument("--out", default=None, help="write into this new folder instead of the cache")
     parser.add_argument("--categories", nargs="*", default=None,
-                        help=f"names or ids (default: all of {[c.name for c in PROCEDURAL_CATEGORIES]})")
-    parser.add_argument("--train", type=int, default=defaults.train, help="objects per category")
-    parser.add_argument("--val", type=int, default=defaults.val)
-    parser.add_argument("--test", type=int, default=defaults.test)
-    parser.add_argument("--seed", type=int, default=defaults.seed)
-    parser.add_argument("--supersample", type=int, default=defaults.supersample, help="rays per pixel side")
-    parser.add_argument("--voxel-rule", default=defaults.voxel_rule, choices=("centre", "protocol"),
-                        help="ground-truth voxels: centre inside (SPEC) or the benchmark's voxelisation")
+                        help=f"names or ids (default: the 13 NMR categories; all: {[c.name for c in ALL_CATEGORIES]})")
+    parser.add_argument("--train", type=int, default=None, help="objects per category (default: the preset's)")
+    parser.add_argument("--val", type=int, default=None)
+    parser.add_argument("--test", type=int, default=None)
+    parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--supersample", type=int, default=None, help="rays per pixel side")
+    parser.add_argument("--voxel-rule", default=None, choices=VOXEL_RULES,
+                        help="ground-truth voxels: the benchmark's voxelisation (protocol) or centre inside")
+    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)),
+                        help="generating processes (default: one per core; 0: this process)")
     args = parser.parse_args(argv)
+    values = preset_settings(args.preset)
+    for key in ("train", "val", "test", "seed", "supersample", "voxel_rule"):
+        if getattr(args, key) is not None:
+            values[key] = getattr(args, key)
+    if args.categories:
+        values["categories"] = args.categories
     try:
-        settings = ProceduralSettings(tuple(args.categories or ()), args.train, args.val, args.test, args.seed,
-                                      args.supersample, args.voxel_rule)
+        settings = ProceduralSettings(**{**values, "categories": tuple(values["categories"])})
+        if args.workers < 0:
+            raise ValueError(f"--workers must be >= 0, got {args.workers}")
     except ValueError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
+        print(f"make_procedural: error: {err}", file=sys.stderr)
+        return 2
     start = time.time()
-    if args.out:
-        path = generate_procedural_dataset(args.out, settings)
-    else:
-        path = ensure_procedural_dataset(args.cache_dir, settings)
-    print(f"{path} ({time.time() - start:.1f} s)")
+    try:
+        if args.out:
+            path = generate_procedural_dataset(args.out, settings, workers=args.workers)
+        else:
+            path = ensure_procedural_dataset(args.cache_dir, settings, workers=args.workers)
+    except (FileExistsError, OSError) as err:
+        print(f"make_procedural: error: {err}", file=sys.stderr)
+        return 1
+    objects = sum(settings.sizes().values()) * len(settings.categories)
+    print(f"{path}: {objects} objects, {folder_bytes(path) / 2**20:.0f} MiB, {time.time() - start:.1f} s")
     return 0
 
 

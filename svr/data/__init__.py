@@ -1,5 +1,6 @@
 """Single-view data: the NMR ShapeNet format (``nmr``), the procedural dataset in that format
-(``procedural``, built on the analytic CSG shapes of ``csg``), the Lightning DataModules
+(``procedural``, its shape categories in ``categories``, built on the analytic CSG shapes of
+``csg``), the Lightning DataModules
 (``datamodule``) and the batch contract (``types``).
 
 Names are imported lazily, so that ``import svr.data.types`` stays light.
@@ -11,7 +12,7 @@ import importlib
 _EXPORTS = {
     "SVRBatch": "types", "ShadingModel": "types", "collate_batch": "types",
     "NMRDataset": "nmr", "NMR_CATEGORIES": "nmr", "prepare_nmr": "nmr",
-    "PROCEDURAL_CATEGORIES": "procedural", "ProceduralSettings": "procedural", "DEFAULT_SHADING": "procedural",
+    "ALL_CATEGORIES": "categories", "NMR_PROCEDURAL_CATEGORIES": "categories", "ProceduralSettings": "procedural", "DEFAULT_SHADING": "procedural",
     "generate_procedural_dataset": "procedural", "ensure_procedural_dataset": "procedural",
     "make_shape": "procedural", "render_shape": "procedural", "voxelize_shape": "procedural",
     "NMRDataModule": "datamodule", "ProceduralDataModule": "datamodule",

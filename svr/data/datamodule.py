@@ -388,21 +388,29 @@ class ProceduralDataModule(NMRDataModule):
 
     Args:
         cache_dir: where generated datasets live; a relative path is taken from the repository root.
-        categories: procedural category names or ids (default: all eight).
+        categories: procedural category names or ids (default: the 13 NMR ShapeNet categories).
         train, val, test: objects per category and split.
         data_seed: the dataset's seed (which objects); ``seed`` seeds the training draws.
         supersample: anti-aliasing rays per pixel side.
-        voxel_rule: "centre" or "protocol" ground-truth voxels (``ProceduralSettings``).
+        voxel_rule: "protocol" (default) or "centre" ground-truth voxels (``ProceduralSettings``).
+        generation_workers: processes that generate the dataset when it is missing (0: this one;
+            None: one per core). Not part of the dataset's identity.
         The other arguments are NMRDataModule's.
     """
 
     def __init__(self, cache_dir: PathLike = "data/cache", categories: Optional[Sequence[str]] = None,
                  train: int = 32, val: int = 4, test: int = 6, data_seed: int = 0, supersample: int = 3,
-                 voxel_rule: str = "centre", batch_size: int = 32, eval_batch_size: int = 64, views_per_sample: int = 2,
+                 voxel_rule: str = "protocol", batch_size: int = 32, eval_batch_size: int = 64, views_per_sample: int = 2,
                  samples_per_epoch: Optional[int] = None, category_balanced: bool = False,
                  val_views: Optional[Sequence[int]] = None, val_objects_per_category: Optional[int] = None,
-                 num_workers: int = 0, pin_memory: bool = False, seed: int = 0, progress: bool = True):
+                 num_workers: int = 0, pin_memory: bool = False, seed: int = 0, progress: bool = True,
+                 generation_workers: Optional[int] = None):
         pl.LightningDataModule.__init__(self)
+        if generation_workers is None:
+            generation_workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        if isinstance(generation_workers, bool) or not isinstance(generation_workers, int) or generation_workers < 0:
+            raise ValueError(f"generation_workers must be an int >= 0 or null, got {generation_workers!r}")
+        self.generation_workers = generation_workers
         self.settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample,
                                            voxel_rule)
         cache = Path(cache_dir).expanduser()
@@ -418,7 +426,7 @@ class ProceduralDataModule(NMRDataModule):
 
     def prepare_data(self) -> None:
         """Generates the dataset if its cache folder does not exist yet."""
-        ensure_procedural_dataset(self.cache_dir, self.settings, progress=self.progress)
+        ensure_procedural_dataset(self.cache_dir, self.settings, progress=self.progress, workers=self.generation_workers)
 
     def dataset(self, split: str) -> NMRDataset:
         if split not in self._sets and not self.root.exists():

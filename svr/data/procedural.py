@@ -1,8 +1,8 @@
 """A procedural single-view dataset in the exact NMR ShapeNet layout.
 
-Eight categories of parametric CSG shapes (``svr.data.csg``), several with holes (genus > 0),
-random but reproducible from a seed, normalised like ShapeNet (centred on the bounding box,
-longest side 1). Per object:
+The 13 NMR ShapeNet categories (and two extras) as parametric CSG shapes (``svr.data.categories``),
+each in several styles, random but reproducible from a seed, normalised like ShapeNet (centred on
+the bounding box, longest side 1). Per object:
 
 * 24 RGBA views, uint8 (24, 4, 64, 64), with the NMR cameras (``renderer.Cameras.nmr``: elevation
   30, distance 2.732, FOV 30), sphere-traced on the *analytic* SDF, anti-aliased by supersampling
@@ -10,15 +10,18 @@ longest side 1). Per object:
   the adaptive rule), shaded with the fixed light of ``DEFAULT_SHADING`` through
   ``renderer.shading.shade_lambert`` on a white background, so that training can re-render the
   same shading with ``ShadingModel.scene()``.
-* solid voxels, bool (32, 32, 32), in the NMR voxel frame: by default (``voxel_rule="centre"``)
-  ``vox[i, j, k]`` is occupied iff the analytic SDF is negative at the world point
-  ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``; ``voxel_rule="protocol"`` uses the benchmark's
-  mesh voxelisation instead (see ``voxelize_shape``).
+* solid voxels, bool (32, 32, 32), in the NMR voxel frame: by default (``voxel_rule="protocol"``)
+  the benchmark's own voxelisation of a fine marching-cubes mesh of the analytic SDF (see
+  ``voxelize_shape``), so that the exact shape scores about 1 under the benchmark protocol;
+  ``voxel_rule="centre"``: ``vox[i, j, k]`` is occupied iff the analytic SDF is negative at the
+  world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``.
 
 ``generate_procedural_dataset`` writes ``{cid}_{split}_images.npz`` / ``{cid}_{split}_voxels.npz``
-(key ``arr_0``, as NMR ShapeNet), a ``metadata.json`` (categories, shading model, settings), and the
-memory-mapped ``.npy`` copies of ``svr.data.nmr.prepare_nmr``. ``ensure_procedural_dataset`` does it
-once into a cache folder named by a hash of the settings and reuses it afterwards.
+(key ``arr_0``, as NMR ShapeNet), a ``metadata.json`` (categories, settings, shading model), and the
+memory-mapped ``.npy`` copies that ``svr.data.nmr.prepare_nmr`` makes of real NMR data, in chunks
+that worker processes render in parallel and that a killed generation resumes.
+``ensure_procedural_dataset`` does it once into a cache folder named by a hash of the settings and
+reuses it afterwards.
 """
 from __future__ import annotations
 
@@ -29,21 +32,22 @@ import json
 import math
 import os
 import shutil
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Optional, Sequence, Union
+from typing import Optional, Union
 
 import numba
 import numpy as np
 import torch
 
 from ..geometry import NMR_VOXEL_RESOLUTION, nmr_voxel_centres
-from .csg import CSGBuilder, CSGShape, rotation, surface_normals, trace_rays
+from .categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
+                         make_shape, procedural_category, style_of)
+from .csg import CSGShape, surface_normals, trace_rays
 from .types import ShadingModel
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
-GENERATOR_VERSION = 1
+GENERATOR_VERSION = 2
 
 NUM_VIEWS = 24
 IMAGE_SIZE = 64
@@ -57,321 +61,6 @@ DEFAULT_SHADING = ShadingModel(
     albedo=(0.85, 0.62, 0.42),
     background=(1.0, 1.0, 1.0),
 )
-
-
-# ---------------------------------------------------------------------------------------------
-# Categories. Shapes are built roughly in unit size, y up, facing -z (towards view 0), with every
-# part at least ~0.05 thick so that it survives 32^3 voxel-centre sampling (voxel size 1/31).
-
-
-def _u(rng: np.random.Generator, lo: float, hi: float) -> float:
-    return float(rng.uniform(lo, hi))
-
-
-def _legs(b: CSGBuilder, rng, xs, zs, top: float, thick: float, round_legs: bool) -> None:
-    for x in xs:
-        for z in zs:
-            if round_legs:
-                b.cylinder((x, top / 2, z), thick / 2, top / 2)
-            else:
-                b.box((x, top / 2, z), (thick / 2, top / 2, thick / 2))
-
-
-def make_chair(rng: np.random.Generator) -> CSGShape:
-    """Seat, four legs, a (possibly tilted) back that is a panel, slats or rails; optional arms and
-    leg stretchers. Slatted backs, arms and stretchers make holes."""
-    b = CSGBuilder()
-    sw, sd, st = _u(rng, 0.42, 0.56), _u(rng, 0.38, 0.5), _u(rng, 0.05, 0.08)
-    sh = _u(rng, 0.36, 0.48)
-    lt = _u(rng, 0.05, 0.07)
-    inset = _u(rng, 0.0, 0.03)
-    lx, lz = sw / 2 - lt / 2 - inset, sd / 2 - lt / 2 - inset
-    _legs(b, rng, (-lx, lx), (-lz, lz), sh, lt, rng.random() < 0.5)
-    b.box((0, sh + st / 2, 0), (sw / 2, st / 2, sd / 2), rounding=0.01)
-    if rng.random() < 0.4:  # side stretchers: a loop with two legs and the seat
-        y = _u(rng, 0.08, 0.2)
-        for x in (-lx, lx):
-            b.box_between((x - 0.025, y - 0.025, -lz), (x + 0.025, y + 0.025, lz))
-    # back, built upright at the seat's rear edge and tilted backwards about the x axis
-    bh, bt = _u(rng, 0.35, 0.55), _u(rng, 0.05, 0.07)
-    tilt = _u(rng, 0.0, 0.25)
-    pivot = np.array([0.0, sh + st, sd / 2 - bt / 2])
-    rot = rotation((1, 0, 0), -tilt)  # top moves towards +z
-
-    def back_box(lo, hi):
-        lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-        centre = pivot + rot @ ((lo + hi) / 2)
-        b.box(centre, np.abs(hi - lo) / 2, rot)
-
-    style = rng.integers(0, 3)
-    if style == 0:
-        back_box((-sw / 2, 0, -bt / 2), (sw / 2, bh, bt / 2))
-    else:
-        pw = _u(rng, 0.05, 0.07)
-        rail = _u(rng, 0.06, 0.1)
-        back_box((-sw / 2, 0, -bt / 2), (-sw / 2 + pw, bh, bt / 2))
-        back_box((sw / 2 - pw, 0, -bt / 2), (sw / 2, bh, bt / 2))
-        back_box((-sw / 2, bh - rail, -bt / 2), (sw / 2, bh, bt / 2))
-        if style == 1:  # vertical slats
-            n = int(rng.integers(1, 4))
-            inner = sw - 2 * pw
-            w = min(0.06, inner / (2 * n + 1))
-            w = max(w, 0.05)
-            for k in range(n):
-                x = -inner / 2 + inner * (k + 1) / (n + 1)
-                back_box((x - w / 2, 0, -bt / 2 * 0.8), (x + w / 2, bh - rail, bt / 2 * 0.8))
-        else:  # horizontal rails
-            n = int(rng.integers(1, 3))
-            for k in range(n):
-                y = (bh - rail) * (k + 1) / (n + 1)
-                back_box((-sw / 2 + pw, y - 0.03, -bt / 2 * 0.8), (sw / 2 - pw, y + 0.03, bt / 2 * 0.8))
-    if rng.random() < 0.3:  # arms: rest + front post, each a loop with seat and back
-        ah = _u(rng, 0.17, 0.25)
-        for x in (-sw / 2 + 0.03, sw / 2 - 0.03):
-            b.box_between((x - 0.03, sh + st + ah - 0.05, -sd / 2 + 0.03), (x + 0.03, sh + st + ah, sd / 2 - bt))
-            b.box_between((x - 0.025, sh + st, -sd / 2 + 0.03), (x + 0.025, sh + st + ah, -sd / 2 + 0.08))
-    return b.shape()
-
-
-def make_table(rng: np.random.Generator) -> CSGShape:
-    """Rectangular or round top on four legs (with optional apron and stretchers: holes) or on a
-    pedestal."""
-    b = CSGBuilder()
-    tw, td, tt = _u(rng, 0.8, 1.0), _u(rng, 0.45, 0.9), _u(rng, 0.05, 0.08)
-    th = _u(rng, 0.45, 0.75)
-    round_top = rng.random() < 0.3
-    if round_top:
-        r = min(tw, td) / 2
-        b.cylinder((0, th - tt / 2, 0), r, tt / 2)
-        hx = hz = r * 0.62
-    else:
-        b.box((0, th - tt / 2, 0), (tw / 2, tt / 2, td / 2), rounding=0.01)
-        hx, hz = tw / 2, td / 2
-    if rng.random() < 0.25:  # pedestal
-        pr = _u(rng, 0.04, 0.08)
-        b.cylinder((0, th / 2, 0), pr, th / 2)
-        b.cylinder((0, 0.03, 0), _u(rng, 0.18, 0.3), 0.03)
-        return b.shape()
-    lt = _u(rng, 0.05, 0.08)
-    inset = _u(rng, 0.0, 0.06)
-    lx, lz = hx - lt / 2 - inset, hz - lt / 2 - inset
-    _legs(b, rng, (-lx, lx), (-lz, lz), th - tt, lt, rng.random() < 0.5)
-    if rng.random() < 0.4:  # apron under the top
-        ah = _u(rng, 0.06, 0.1)
-        y0 = th - tt - ah
-        b.box_between((-lx, y0, -lz - 0.025), (lx, th - tt, -lz + 0.025))
-        b.box_between((-lx, y0, lz - 0.025), (lx, th - tt, lz + 0.025))
-    if rng.random() < 0.5:  # stretchers
-        y = _u(rng, 0.1, 0.25)
-        for z in (-lz, lz):
-            b.box_between((-lx, y - 0.025, z - 0.025), (lx, y + 0.025, z + 0.025))
-        if rng.random() < 0.5:
-            b.box_between((-0.025, y - 0.025, -lz), (0.025, y + 0.025, lz))
-    return b.shape()
-
-
-def make_lamp(rng: np.random.Generator) -> CSGShape:
-    """A base disc and a pole, then either a floor lamp (open tube shade on top: a hole) or a desk
-    lamp (angled arm, shade tilted down, open at the bottom): asymmetric."""
-    b = CSGBuilder()
-    br, bh = _u(rng, 0.12, 0.2), _u(rng, 0.025, 0.04)
-    b.cylinder((0, bh, 0), br, bh)
-    pr = _u(rng, 0.025, 0.035)
-    if rng.random() < 0.5:  # floor lamp
-        height = _u(rng, 0.7, 1.0)
-        b.cylinder((0, height / 2, 0), pr, height / 2)
-        sh, rb, rt = _u(rng, 0.08, 0.12), _u(rng, 0.15, 0.24), _u(rng, 0.07, 0.12)
-        cy = height + sh * 0.6
-        b.cone((0, cy, 0), sh, rb, rt)
-        w = 0.05
-        b.cone((0, cy, 0), sh + 0.02, rb - w - 0.01, rt - w + 0.01, op="subtract")
-        # spokes from the pole top to the shade
-        for ang in (0.0, math.pi):
-            b.rod((0, height, 0), (math.cos(ang) * (rt - 0.02), cy + sh * 0.5, math.sin(ang) * (rt - 0.02)), 0.025)
-        return b.shape()
-    height = _u(rng, 0.35, 0.55)
-    b.cylinder((0, height / 2, 0), pr, height / 2)
-    ang = _u(rng, 0.3, 1.1)  # arm elevation above horizontal
-    az = _u(rng, -0.6, 0.6)  # arm direction around y
-    length = _u(rng, 0.25, 0.4)
-    tip = np.array([math.cos(ang) * math.cos(az), math.sin(ang), math.cos(ang) * math.sin(az)]) * length
-    top = np.array([0.0, height, 0.0])
-    b.capsule(top, top + tip, pr)
-    sh, rb, rt = _u(rng, 0.07, 0.1), _u(rng, 0.1, 0.16), _u(rng, 0.05, 0.07)
-    down = rotation((-math.sin(az), 0, math.cos(az)), -_u(rng, 0.2, 0.6))  # tilt the shade outwards
-    centre = top + tip + down @ np.array([0.0, -sh, 0.0])
-    b.cone(centre, sh, rb, rt, down)
-    b.cone(centre + down @ np.array([0.0, -0.03, 0.0]), sh, rb - 0.05, rt - 0.05, down, op="subtract")
-    return b.shape()
-
-
-def make_airplane(rng: np.random.Generator) -> CSGShape:
-    """Fuselage along z (nose towards -z), swept wings with dihedral, tail fin and stabilisers,
-    optional engines."""
-    b = CSGBuilder()
-    length, fr = _u(rng, 0.8, 1.0), _u(rng, 0.045, 0.07)
-    b.capsule((0, 0, -length / 2 + fr), (0, 0, length / 2 - fr), fr)
-    span, chord, th = _u(rng, 0.7, 1.0), _u(rng, 0.12, 0.2), 0.05
-    sweep, dihedral = _u(rng, 0.0, 0.5), _u(rng, 0.0, 0.12)
-    wz, wy = _u(rng, -0.12, 0.08), _u(rng, -fr / 2, fr / 3)
-    for side in (-1, 1):
-        rot = rotation((0, 1, 0), side * sweep) @ rotation((0, 0, 1), side * dihedral)
-        centre = np.array([0.0, wy, wz]) + rot @ np.array([side * span / 4, 0, 0])
-        b.box(centre, (span / 4, th / 2, chord / 2), rot, rounding=0.01)
-    tz = length / 2 - _u(rng, 0.08, 0.14)
-    fin_h, fin_c = _u(rng, 0.1, 0.18), _u(rng, 0.1, 0.16)
-    fin_rot = rotation((1, 0, 0), _u(rng, 0.2, 0.5))
-    b.box(np.array([0, fr + fin_h / 2 - 0.02, tz]), (0.025, fin_h / 2, fin_c / 2), fin_rot)
-    sspan = _u(rng, 0.2, 0.35)
-    for side in (-1, 1):
-        rot = rotation((0, 1, 0), side * sweep)
-        b.box(np.array([0, 0.0, tz]) + rot @ np.array([side * sspan / 4, 0, 0]), (sspan / 4, 0.025, fin_c / 2.5), rot)
-    if rng.random() < 0.6:
-        er, el = _u(rng, 0.03, 0.045), _u(rng, 0.12, 0.2)
-        n = 1 if rng.random() < 0.6 else 2
-        for side in (-1, 1):
-            for k in range(n):
-                x = side * span / 2 * (0.3 + 0.3 * k)
-                z = wz + math.tan(sweep) * abs(x) - chord * 0.4
-                b.cylinder((x, wy - th / 2 - er * 0.9, z), er, el / 2, rotation((1, 0, 0), math.pi / 2))
-    return b.shape()
-
-
-def make_bench(rng: np.random.Generator) -> CSGShape:
-    """Long seat on two side panels with cut-outs (holes) or on legs, optional slatted back."""
-    b = CSGBuilder()
-    bw, bd, st, sh = _u(rng, 0.9, 1.0), _u(rng, 0.28, 0.4), _u(rng, 0.05, 0.07), _u(rng, 0.35, 0.45)
-    b.box((0, sh + st / 2, 0), (bw / 2, st / 2, bd / 2), rounding=0.01)
-    px = bw / 2 - _u(rng, 0.04, 0.12)
-    if rng.random() < 0.55:  # panels with a rectangular cut-out
-        pt = _u(rng, 0.05, 0.06)
-        for x in (-px, px):
-            b.box((x, sh / 2, 0), (pt / 2, sh / 2, bd / 2 - 0.01))
-        for x in (-px, px):
-            b.box((x, sh / 2 - 0.02, 0), (pt, sh / 2 - 0.08, bd / 2 - 0.07), op="subtract")
-    else:
-        lt = _u(rng, 0.05, 0.07)
-        _legs(b, rng, (-px, px), (-(bd / 2 - lt), bd / 2 - lt), sh, lt, rng.random() < 0.5)
-        if rng.random() < 0.5:
-            y = _u(rng, 0.08, 0.18)
-            b.box_between((-px, y - 0.025, -0.025), (px, y + 0.025, 0.025))
-            for x in (-px, px):
-                b.box_between((x - 0.025, y - 0.025, -(bd / 2 - lt)), (x + 0.025, y + 0.025, bd / 2 - lt))
-    if rng.random() < 0.7:  # back: posts and 1-3 slats
-        bh = _u(rng, 0.25, 0.4)
-        z = bd / 2 - 0.03
-        for x in (-px, px):
-            b.box_between((x - 0.03, sh + st, z - 0.03), (x + 0.03, sh + st + bh, z + 0.03))
-        n = int(rng.integers(1, 4))
-        for k in range(n):
-            y = sh + st + bh - 0.04 - k * (bh - 0.05) / max(n, 1)
-            b.box_between((-bw / 2 + 0.02, y - 0.03, z - 0.025), (bw / 2 - 0.02, y + 0.03, z + 0.025))
-    return b.shape()
-
-
-def make_mug(rng: np.random.Generator) -> CSGShape:
-    """A (possibly tapered) cup with a bottom and a torus handle: genus 1."""
-    b = CSGBuilder()
-    r, h = _u(rng, 0.25, 0.35), _u(rng, 0.5, 0.8)
-    wall, bottom = _u(rng, 0.05, 0.07), _u(rng, 0.05, 0.08)
-    taper = _u(rng, 0.0, 0.08) if rng.random() < 0.4 else 0.0
-    b.cone((0, h / 2, 0), h / 2, r - taper, r)
-    hr, hm = _u(rng, 0.12, 0.2) * h / 0.65, _u(rng, 0.035, 0.05)
-    hr = min(hr, h / 2 - hm - 0.02)
-    b.torus((r - 0.02 + hr * 0.55, h * _u(rng, 0.45, 0.55), 0), hr, hm, rotation((1, 0, 0), math.pi / 2))
-    # the cavity, cut last so the handle never enters the cup
-    b.cone((0, bottom + (h - bottom) / 2 + 0.05, 0), (h - bottom) / 2 + 0.05,
-           r - taper - wall, r - wall + 0.05 * taper / h, op="subtract")
-    return b.shape()
-
-
-def make_sofa(rng: np.random.Generator) -> CSGShape:
-    """Rounded base, back and arms with seat cushions on short legs."""
-    b = CSGBuilder()
-    w, d = _u(rng, 0.8, 1.0), _u(rng, 0.38, 0.5)
-    leg = _u(rng, 0.04, 0.07)
-    bh = _u(rng, 0.15, 0.22)
-    b.box_between((-w / 2, leg, -d / 2), (w / 2, leg + bh, d / 2), rounding=0.03)
-    bt = _u(rng, 0.1, 0.16)
-    back_h = _u(rng, 0.2, 0.35)
-    b.box_between((-w / 2, leg + bh - 0.02, d / 2 - bt), (w / 2, leg + bh + back_h, d / 2), rounding=0.04)
-    at, ah = _u(rng, 0.08, 0.14), _u(rng, 0.08, 0.2)
-    if rng.random() < 0.85:
-        for s in (-1, 1):
-            x0, x1 = sorted((s * w / 2, s * (w / 2 - at)))
-            b.box_between((x0, leg + bh - 0.02, -d / 2), (x1, leg + bh + ah, d / 2), rounding=0.03)
-    n = int(rng.integers(1, 4))
-    ch = _u(rng, 0.05, 0.09)
-    inner = w - 2 * at
-    for k in range(n):
-        x0 = -inner / 2 + inner * k / n + 0.005
-        x1 = -inner / 2 + inner * (k + 1) / n - 0.005
-        b.box_between((x0, leg + bh - 0.01, -d / 2 + 0.01), (x1, leg + bh + ch, d / 2 - bt), rounding=0.025)
-    for x in (-w / 2 + 0.06, w / 2 - 0.06):
-        for z in (-d / 2 + 0.06, d / 2 - 0.06):
-            b.cylinder((x, leg / 2 + 0.01, z), 0.03, leg / 2 + 0.01)
-    return b.shape()
-
-
-def make_shelf(rng: np.random.Generator) -> CSGShape:
-    """A bookcase: a box with a grid of compartments open at the front; with an open back the
-    compartments go through (holes)."""
-    b = CSGBuilder()
-    w, h, d = _u(rng, 0.45, 0.9), _u(rng, 0.7, 1.0), _u(rng, 0.25, 0.4)
-    t = _u(rng, 0.05, 0.06)
-    b.box((0, h / 2, 0), (w / 2, h / 2, d / 2))
-    rows, cols = int(rng.integers(2, 5)), int(rng.integers(1, 3))
-    open_back = rng.random() < 0.4
-    cw = (w - (cols + 1) * t) / cols
-    chh = (h - (rows + 1) * t) / rows
-    z1 = d / 2 + 0.1 if open_back else d / 2 - t
-    for i in range(rows):
-        for j in range(cols):
-            x0 = -w / 2 + t + j * (cw + t)
-            y0 = t + i * (chh + t)
-            b.box_between((x0, y0, -d / 2 - 0.1), (x0 + cw, y0 + chh, z1), op="subtract")
-    return b.shape()
-
-
-@dataclass(frozen=True)
-class ProceduralCategory:
-    """A procedural category: an 8-digit id (distinct from ShapeNet's synset ids, which start with
-    0), a name and the generator of its raw (un-normalised) shapes."""
-
-    category_id: str
-    name: str
-    make: Callable[[np.random.Generator], CSGShape]
-
-
-PROCEDURAL_CATEGORIES: tuple[ProceduralCategory, ...] = (
-    ProceduralCategory("90000001", "chair", make_chair),
-    ProceduralCategory("90000002", "table", make_table),
-    ProceduralCategory("90000003", "lamp", make_lamp),
-    ProceduralCategory("90000004", "airplane", make_airplane),
-    ProceduralCategory("90000005", "bench", make_bench),
-    ProceduralCategory("90000006", "mug", make_mug),
-    ProceduralCategory("90000007", "sofa", make_sofa),
-    ProceduralCategory("90000008", "shelf", make_shelf),
-)
-_BY_NAME = {c.name: c for c in PROCEDURAL_CATEGORIES}
-_BY_ID = {c.category_id: c for c in PROCEDURAL_CATEGORIES}
-
-
-def procedural_category(key: str) -> ProceduralCategory:
-    """A category by name ("chair") or id ("90000001")."""
-    if key in _BY_NAME:
-        return _BY_NAME[key]
-    if key in _BY_ID:
-        return _BY_ID[key]
-    raise ValueError(f"unknown procedural category {key!r}; expected one of {sorted(_BY_NAME)} "
-                     f"or their ids {sorted(_BY_ID)}")
-
-
-def make_shape(category: str, seed: Union[int, Sequence[int]]) -> CSGShape:
-    """One normalised shape (centred, longest bounding-box side 1) of a category, from a seed."""
-    cat = procedural_category(category)
-    rng = np.random.default_rng(np.random.SeedSequence(seed))
-    return cat.make(rng).normalized()
 
 
 def object_seed(seed: int, category_id: str, split: str, index: int) -> list[int]:
@@ -544,13 +233,15 @@ class ProceduralSettings:
     """What the procedural dataset holds. Every field is part of the cache key.
 
     Attributes:
-        categories: category names or ids (``PROCEDURAL_CATEGORIES``); empty = all eight.
-        train, val, test: objects per category in each split.
+        categories: category names or ids (``ALL_CATEGORIES``); empty = the 13 NMR ShapeNet
+            categories (``NMR_PROCEDURAL_CATEGORIES``), in the paper's table order.
+        train, val, test: objects per category in each split (not all three 0).
         seed: the dataset's seed (objects are reproducible from it).
         supersample: rays per pixel side for anti-aliasing.
-        voxel_rule: how the ground-truth voxels are made (``voxelize_shape``): "centre" (SPEC 5's
-            definition, the default) or "protocol" (the benchmark's own voxelisation of the exact
-            shape; a perfect prediction then scores about 1 under ``svr.metrics.iou_protocol``).
+        voxel_rule: how the ground-truth voxels are made (``voxelize_shape``): "protocol" (the
+            default: the benchmark's own voxelisation of the exact shape's mesh, so the exact shape
+            on the model's grid scores about 1 under ``svr.metrics.iou_protocol``) or "centre"
+            (SPEC 5's definition, centre inside; there an exact prediction scores about 0.6).
     """
 
     categories: tuple[str, ...] = ()
@@ -559,10 +250,12 @@ class ProceduralSettings:
     test: int = 6
     seed: int = 0
     supersample: int = 3
-    voxel_rule: str = "centre"
+    voxel_rule: str = "protocol"
 
     def __post_init__(self) -> None:
-        cats = tuple(self.categories) if self.categories else tuple(c.name for c in PROCEDURAL_CATEGORIES)
+        if isinstance(self.categories, str):
+            raise ValueError(f"categories must be a list of names or ids, got the string {self.categories!r}")
+        cats = tuple(self.categories) if self.categories else tuple(c.name for c in NMR_PROCEDURAL_CATEGORIES)
         names = tuple(procedural_category(str(c)).name for c in cats)
         if len(set(names)) != len(names):
             raise ValueError(f"categories must not repeat, got {list(cats)}")
@@ -571,9 +264,11 @@ class ProceduralSettings:
             n = getattr(self, split)
             if not isinstance(n, int) or isinstance(n, bool) or n < 0:
                 raise ValueError(f"{split} must be a non-negative int (objects per category), got {n!r}")
-        if not isinstance(self.supersample, int) or self.supersample < 1:
+        if self.train == self.val == self.test == 0:
+            raise ValueError("train, val and test are all 0: the dataset would hold no objects")
+        if not isinstance(self.supersample, int) or isinstance(self.supersample, bool) or self.supersample < 1:
             raise ValueError(f"supersample must be a positive int, got {self.supersample!r}")
-        if not isinstance(self.seed, int):
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
             raise ValueError(f"seed must be an int, got {self.seed!r}")
         if self.voxel_rule not in VOXEL_RULES:
             raise ValueError(f"voxel_rule must be one of {VOXEL_RULES}, got {self.voxel_rule!r}")
@@ -591,61 +286,218 @@ class ProceduralSettings:
                            "version": GENERATOR_VERSION}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
+    def to_json(self) -> dict:
+        return {**dataclasses.asdict(self), "categories": list(self.categories)}
+
 
 METADATA_FILE = "metadata.json"
+# Objects per work item of a generation: the unit that is written, marked done and resumed.
+CHUNK_OBJECTS = 8
+
+
+def read_settings(root: Union[str, os.PathLike]) -> ProceduralSettings:
+    """The ProceduralSettings recorded in ``<root>/metadata.json`` (a generated dataset).
+
+    Raises:
+        ValueError naming the file when it is missing, unreadable or not a procedural dataset.
+    """
+    path = Path(root) / METADATA_FILE
+    try:
+        meta = json.loads(path.read_text())
+        s = meta["settings"]
+        return ProceduralSettings(tuple(s["categories"]), int(s["train"]), int(s["val"]), int(s["test"]),
+                                  int(s["seed"]), int(s["supersample"]), str(s["voxel_rule"]))
+    except FileNotFoundError:
+        raise ValueError(f"{path} is missing: {Path(root)} is not a generated procedural dataset") from None
+    except (ValueError, KeyError, TypeError) as err:
+        raise ValueError(f"{path}: not the metadata of a procedural dataset ({err})") from None
+
+
+def dataset_shape(root: Union[str, os.PathLike], category_id: str, split: str, index: int) -> CSGShape:
+    """The exact (analytic) shape of object ``index`` of a category and split of a generated
+    dataset, rebuilt from its recorded seed (for the oracle baseline, ``svr.baselines``)."""
+    settings = read_settings(root)
+    names = dict(settings.category_pairs())
+    if category_id not in names:
+        raise ValueError(f"category {category_id!r} is not in the dataset {root} ({list(names)})")
+    if split not in SPLITS or not 0 <= int(index) < getattr(settings, split):
+        raise ValueError(f"no object {index} in split {split!r} of {root}")
+    return make_shape(names[category_id], object_seed(settings.seed, category_id, split, int(index)))
+
+
+@dataclass(frozen=True)
+class _Chunk:
+    """One work item: objects ``start .. stop - 1`` of a category and split."""
+
+    category_id: str
+    name: str
+    split: str
+    start: int
+    stop: int
+
+    @property
+    def marker(self) -> str:
+        return f"{self.category_id}_{self.split}_{self.start:06d}.done"
+
+
+def _make_chunk(chunk: _Chunk, settings: ProceduralSettings, shading: ShadingModel) -> tuple[np.ndarray, np.ndarray]:
+    """Renders and voxelises one chunk: ((n, 24, 4, 64, 64) uint8, (n, 32, 32, 32) bool)."""
+    n = chunk.stop - chunk.start
+    images = np.zeros((n, NUM_VIEWS, 4, IMAGE_SIZE, IMAGE_SIZE), dtype=np.uint8)
+    voxels = np.zeros((n,) + (NMR_VOXEL_RESOLUTION,) * 3, dtype=bool)
+    for k, i in enumerate(range(chunk.start, chunk.stop)):
+        shape = make_shape(chunk.name, object_seed(settings.seed, chunk.category_id, chunk.split, i))
+        images[k] = render_shape(shape, shading, settings.supersample)
+        voxels[k] = voxelize_shape(shape, rule=settings.voxel_rule)
+    return images, voxels
+
+
+def _worker_init() -> None:
+    # The processes already share the cores: numba's own threads would only oversubscribe them.
+    numba.set_num_threads(1)
+    torch.set_num_threads(1)
+
+
+def _open_arrays(folder: Path, settings: ProceduralSettings) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
+    """The (images, voxels) .npy memory maps of every category and split in a partial folder,
+    created on first use (their final names: they become the prepared arrays of ``prepare_nmr``)."""
+    from .nmr import nmr_file
+
+    arrays = {}
+    for cid, _ in settings.category_pairs():
+        for split in SPLITS:
+            n = getattr(settings, split)
+            pair = []
+            for kind, item, dtype in (("images", (NUM_VIEWS, 4, IMAGE_SIZE, IMAGE_SIZE), np.uint8),
+                                      ("voxels", (NMR_VOXEL_RESOLUTION,) * 3, np.bool_)):
+                path = nmr_file(folder, cid, split, kind, "npy")
+                mode = "r+" if path.exists() else "w+"
+                pair.append(np.lib.format.open_memmap(path, mode=mode, dtype=dtype, shape=(n, *item)))
+            arrays[(cid, split)] = tuple(pair)
+    return arrays
 
 
 def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: ProceduralSettings = ProceduralSettings(),
-                                shading: ShadingModel = DEFAULT_SHADING, progress: bool = True) -> Path:
+                                shading: ShadingModel = DEFAULT_SHADING, progress: bool = True,
+                                workers: int = 0) -> Path:
     """Renders and voxelises every object and writes the NMR layout into ``out_dir``.
 
-    The files appear atomically: everything is written into a temporary sibling folder which is
-    then renamed to ``out_dir`` (which must not exist yet).
+    The work goes into ``.<name>.partial`` beside ``out_dir`` in chunks of ``CHUNK_OBJECTS``
+    objects: each chunk is written into the memory-mapped ``.npy`` arrays, flushed, then marked
+    done, so a killed generation continues with the chunks not yet marked when it is started again
+    with the same settings (a different generator or settings start afresh). When every chunk is
+    done, the compressed NMR files and ``metadata.json`` are added and the folder is renamed to
+    ``out_dir`` (which must not exist yet): the dataset appears whole or not at all. A lock file
+    beside it keeps two processes from generating the same folder at once (the second waits).
 
+    Args:
+        workers: processes rendering chunks in parallel (0: this process alone).
     Returns:
         the folder.
     """
+    import fcntl
+
     from tqdm.auto import tqdm
 
-    from .nmr import prepare_nmr
+    from mvr.outputs import write_json, write_npz
 
+    from .nmr import nmr_file
+
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
+        raise ValueError(f"workers must be an int >= 0, got {workers!r}")
     out = Path(out_dir)
     if out.exists():
         raise FileExistsError(f"{out} already exists; remove it or use ensure_procedural_dataset")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
-    try:
-        total = sum(settings.sizes().values()) * len(settings.categories)
-        bar = tqdm(total=total, desc=f"procedural dataset -> {out.name}", unit="obj", disable=not progress)
-        for cid, name in settings.category_pairs():
-            for split in SPLITS:
-                n = getattr(settings, split)
-                images = np.zeros((n, NUM_VIEWS, 4, IMAGE_SIZE, IMAGE_SIZE), dtype=np.uint8)
-                voxels = np.zeros((n,) + (NMR_VOXEL_RESOLUTION,) * 3, dtype=bool)
-                for i in range(n):
-                    shape = make_shape(name, object_seed(settings.seed, cid, split, i))
-                    images[i] = render_shape(shape, shading, settings.supersample)
-                    voxels[i] = voxelize_shape(shape, rule=settings.voxel_rule)
-                    bar.update(1)
-                np.savez_compressed(tmp / f"{cid}_{split}_images.npz", images)
-                np.savez_compressed(tmp / f"{cid}_{split}_voxels.npz", voxels)
-        bar.close()
+    partial = out.parent / f".{out.name}.partial"
+    with open(out.parent / f".{out.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also when the process dies
+        if out.exists():  # another process finished it while this one waited
+            return out
         meta = {
             "format": "nmr-shapenet",
             "source": "procedural",
             "generator_version": GENERATOR_VERSION,
             "categories": [[cid, name] for cid, name in settings.category_pairs()],
             "sizes": settings.sizes(),
-            "settings": {**dataclasses.asdict(settings), "categories": list(settings.categories)},
+            "settings": settings.to_json(),
             "shading": dataclasses.asdict(shading),
         }
-        (tmp / METADATA_FILE).write_text(json.dumps(meta, indent=2))
-        prepare_nmr(tmp, categories=[cid for cid, _ in settings.category_pairs()], progress=False)
-        os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+        plan = partial / "plan.json"
+        if partial.exists() and (not plan.exists() or json.loads(plan.read_text()) != meta):
+            shutil.rmtree(partial)  # another generator's or settings' leftovers
+        done_dir = partial / "done"
+        done_dir.mkdir(parents=True, exist_ok=True)
+        if not plan.exists():
+            write_json(plan, meta)
+        _remove_stale_temporaries(partial)
+        chunks = [_Chunk(cid, name, split, a, min(a + CHUNK_OBJECTS, getattr(settings, split)))
+                  for cid, name in settings.category_pairs() for split in SPLITS
+                  for a in range(0, getattr(settings, split), CHUNK_OBJECTS)]
+        todo = [c for c in chunks if not (done_dir / c.marker).exists()]
+        try:
+            arrays = _open_arrays(partial, settings)
+        except (ValueError, OSError):  # an array file cut short while it was being created: start over
+            shutil.rmtree(partial)
+            done_dir.mkdir(parents=True)
+            write_json(plan, meta)
+            todo = chunks
+            arrays = _open_arrays(partial, settings)
+        total = sum(settings.sizes().values()) * len(settings.categories)
+        bar = tqdm(total=total, initial=total - sum(c.stop - c.start for c in todo), unit="obj",
+                   desc=f"procedural dataset -> {out.name}", disable=not progress)
+
+        def store(chunk: _Chunk, result: tuple[np.ndarray, np.ndarray]) -> None:
+            images, voxels = arrays[(chunk.category_id, chunk.split)]
+            images[chunk.start:chunk.stop], voxels[chunk.start:chunk.stop] = result
+            images.flush()
+            voxels.flush()
+            (done_dir / chunk.marker).touch()
+            bar.update(chunk.stop - chunk.start)
+
+        if workers == 0 or len(todo) <= 1:
+            for chunk in todo:
+                store(chunk, _make_chunk(chunk, settings, shading))
+        else:
+            import multiprocessing
+            from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+            with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                     initializer=_worker_init) as pool:
+                queue = list(reversed(todo))
+                running = {}
+                try:
+                    while queue or running:
+                        while queue and len(running) < 2 * workers:
+                            chunk = queue.pop()
+                            running[pool.submit(_make_chunk, chunk, settings, shading)] = chunk
+                        finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                        for job in finished:
+                            store(running.pop(job), job.result())
+                except BaseException:
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    raise
+        bar.close()
+        arrays.clear()  # closes the memory maps before the folder is renamed
+        for cid, _ in settings.category_pairs():
+            for split in SPLITS:
+                for kind in ("images", "voxels"):
+                    npz = nmr_file(partial, cid, split, kind)
+                    if not npz.exists():
+                        write_npz(npz, arr_0=np.load(nmr_file(partial, cid, split, kind, "npy"), mmap_mode="r"))
+        write_json(partial / METADATA_FILE, meta)
+        shutil.rmtree(done_dir)
+        plan.unlink()
+        os.replace(partial, out)
+    # A process waiting for the lock finds the dataset when it gets it; a later one never needs it.
+    (out.parent / f".{out.name}.lock").unlink(missing_ok=True)
     return out
+
+
+def _remove_stale_temporaries(folder: Path) -> None:
+    """Deletes the temporary files of atomic writes a killed run left in ``folder``."""
+    for tmp in folder.glob(".*.tmp"):
+        tmp.unlink(missing_ok=True)
 
 
 def procedural_dataset_dir(cache_dir: Union[str, os.PathLike], settings: ProceduralSettings) -> Path:
@@ -654,16 +506,16 @@ def procedural_dataset_dir(cache_dir: Union[str, os.PathLike], settings: Procedu
 
 
 def ensure_procedural_dataset(cache_dir: Union[str, os.PathLike], settings: ProceduralSettings = ProceduralSettings(),
-                              progress: bool = True) -> Path:
-    """The dataset's folder under ``cache_dir``, generated on first use and reused afterwards."""
+                              progress: bool = True, workers: int = 0) -> Path:
+    """The dataset's folder under ``cache_dir``, generated on first use (or continued, when an
+    earlier generation was killed) and reused afterwards."""
     out = procedural_dataset_dir(cache_dir, settings)
     if (out / METADATA_FILE).exists():
         return out
     try:
-        return generate_procedural_dataset(out, settings, progress=progress)
-    except OSError:
-        # Another process may have finished the same folder first (the rename lost the race).
-        if (out / METADATA_FILE).exists():
+        return generate_procedural_dataset(out, settings, progress=progress, workers=workers)
+    except FileExistsError:
+        if (out / METADATA_FILE).exists():  # another process finished it first
             return out
         raise
 
@@ -688,7 +540,8 @@ def load_shading(root: Union[str, os.PathLike]) -> Optional[ShadingModel]:
 
 
 __all__ = [
-    "DEFAULT_SHADING", "GENERATOR_VERSION", "PROCEDURAL_CATEGORIES", "ProceduralCategory", "ProceduralSettings",
-    "make_shape", "object_seed", "procedural_category", "render_shape", "voxelize_shape", "VOXEL_RULES",
-    "generate_procedural_dataset", "ensure_procedural_dataset", "procedural_dataset_dir", "load_shading",
+    "DEFAULT_SHADING", "GENERATOR_VERSION", "ALL_CATEGORIES", "NMR_PROCEDURAL_CATEGORIES", "EXTRA_CATEGORIES",
+    "ProceduralCategory", "ProceduralSettings", "make_shape", "style_of", "object_seed", "procedural_category",
+    "render_shape", "voxelize_shape", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
+    "procedural_dataset_dir", "load_shading", "read_settings", "dataset_shape",
 ]

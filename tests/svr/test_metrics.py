@@ -247,10 +247,10 @@ def test_gap_between_direct_and_protocol_iou_on_procedural_shapes(capsys):
 
 @pytest.mark.slow
 def test_gap_between_direct_and_protocol_iou_all_categories(capsys):
-    from svr.data.procedural import PROCEDURAL_CATEGORIES
+    from svr.data.procedural import ALL_CATEGORIES
 
     gaps = {}
-    for cat in PROCEDURAL_CATEGORIES:
+    for cat in ALL_CATEGORIES:
         vals = []
         for seed in range(4):
             shape = make_shape(cat.name, [8, 100 + seed])

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,13 +14,13 @@ import svr.data.procedural as procedural
 from svr.data.csg import (BOX, CAPSULE, CONE, CYLINDER, SPHERE, TORUS, CSGBuilder, CSGShape, rotation,
                           surface_normals, trace_rays)
 from svr.data.nmr import NMRDataset, nmr_file
-from svr.data.procedural import (DEFAULT_SHADING, PROCEDURAL_CATEGORIES, ProceduralSettings, load_shading,
-                                 make_shape, render_shape, voxelize_shape)
+from svr.data.procedural import (ALL_CATEGORIES, DEFAULT_SHADING, ProceduralSettings, load_shading, make_shape,
+                                 render_shape, voxelize_shape)
 from svr.geometry import sdf_to_mesh, voxels_to_sdf
 
 from .conftest import asymmetric_shape
 
-ALL = [c.name for c in PROCEDURAL_CATEGORIES]
+ALL = [c.name for c in ALL_CATEGORIES]
 
 
 # ------------------------------------------------------------------------------------ shapes
@@ -154,7 +155,7 @@ def test_unknown_category_is_refused():
     with pytest.raises(ValueError, match="train"):
         ProceduralSettings(train=-1)
     with pytest.raises(ValueError, match="repeat"):
-        ProceduralSettings(categories=("chair", "90000001"))
+        ProceduralSettings(categories=("chair", "03001627"))
 
 
 # ------------------------------------------------------------------------------------ renders
@@ -247,16 +248,19 @@ def test_voxel_frame_reproduces_the_views_and_wrong_frames_do_not():
 
 def test_voxels_and_views_of_the_written_dataset_agree(tiny_procedural):
     """The same check on objects read back from the generated files (mug: its handle breaks the
-    x mirror symmetry; chair: its back breaks the z one)."""
-    _, root, _ = tiny_procedural
+    x mirror symmetry; chair: its back breaks the z one). The files' default (protocol) voxels carry
+    the protocol's surface layer, so their silhouettes are about a voxel wider than the images'."""
+    _, root, settings = tiny_procedural
+    assert settings.voxel_rule == "protocol"
     ds = NMRDataset(root, "train", categories=["mug", "chair"])
     for index, wrong in ((0, WRONG_FRAMES["mirrored x (axis 1 reversed)"]),
                          (ds.counts[0], WRONG_FRAMES["mirrored z (axis 2 not reversed)"])):
         alpha = ds.images_uint8(index)[:, 3]
         voxels = ds.voxels(index).numpy()
         good = _silhouette_iou(voxels, alpha, [2, 11])
-        assert good > 0.85
-        assert _silhouette_iou(np.ascontiguousarray(wrong(voxels)), alpha, [2, 11]) < good - 0.05
+        bad = _silhouette_iou(np.ascontiguousarray(wrong(voxels)), alpha, [2, 11])
+        assert good > 0.75
+        assert bad < good - 0.05
 
 
 def test_protocol_voxel_rule_makes_the_benchmark_protocol_exact():
@@ -284,8 +288,10 @@ def test_dataset_files_have_the_exact_nmr_layout(tiny_procedural):
     meta = json.loads((root / "metadata.json").read_text())
     assert meta["categories"] == [[c, n] for c, n in settings.category_pairs()]
     assert load_shading(root) == DEFAULT_SHADING
+    assert dict((n, c) for c, n in settings.category_pairs())["chair"] == "03001627"  # ShapeNet's synset id
+    assert dict((n, c) for c, n in settings.category_pairs())["mug"] == "90000006"    # an extra: our own id
     for cid, _ in settings.category_pairs():
-        assert len(cid) == 8 and cid.isdigit() and not cid.startswith("0")  # not a ShapeNet synset id
+        assert len(cid) == 8 and cid.isdigit()
         for split, n in settings.sizes().items():
             with np.load(nmr_file(root, cid, split, "images")) as z:
                 assert z.files == ["arr_0"]
@@ -294,7 +300,8 @@ def test_dataset_files_have_the_exact_nmr_layout(tiny_procedural):
                 assert z.files == ["arr_0"]
                 assert z["arr_0"].shape == (n, 32, 32, 32) and z["arr_0"].dtype == np.bool_
             assert nmr_file(root, cid, split, "images", "npy").exists()
-    assert not [p for p in root.parent.iterdir() if ".tmp-" in p.name]
+    assert [p.name for p in root.parent.iterdir()] == [root.name]  # no partial folder, lock or temporary file
+    assert not list(root.glob(".*"))
 
 
 def test_objects_do_not_depend_on_the_split_sizes(tiny_procedural):
@@ -303,7 +310,7 @@ def test_objects_do_not_depend_on_the_split_sizes(tiny_procedural):
     cid, name = settings.category_pairs()[1]
     shape = make_shape(name, procedural.object_seed(settings.seed, cid, "train", 1))
     with np.load(nmr_file(root, cid, "train", "voxels")) as z:
-        np.testing.assert_array_equal(z["arr_0"][1], voxelize_shape(shape))
+        np.testing.assert_array_equal(z["arr_0"][1], voxelize_shape(shape, rule=settings.voxel_rule))
 
 
 def test_cache_is_reused_and_generation_is_atomic(tiny_procedural, tmp_path, monkeypatch):
@@ -314,12 +321,72 @@ def test_cache_is_reused_and_generation_is_atomic(tiny_procedural, tmp_path, mon
 
     monkeypatch.setattr(procedural, "render_shape", fail)
     assert procedural.ensure_procedural_dataset(cache, settings, progress=False) == root
-    # A generation that fails half-way leaves neither the folder nor its temporary sibling.
+    # A generation that fails half-way leaves no dataset folder, only its partial sibling to resume.
     small = ProceduralSettings(categories=("mug",), train=1, val=0, test=0)
     with pytest.raises(RuntimeError, match="must not run"):
         procedural.ensure_procedural_dataset(tmp_path, small, progress=False)
-    assert list(tmp_path.iterdir()) == []
+    assert [p.name for p in tmp_path.iterdir() if not p.name.endswith(".lock")] == [f".procedural-{small.key()}.partial"]
     assert settings.key() != small.key() and len(settings.key()) == 12
+
+
+GENERATE = """
+import sys
+from svr.data.procedural import ProceduralSettings, ensure_procedural_dataset
+if __name__ == "__main__":
+    settings = ProceduralSettings(categories=("table", "mug"), train=17, val=1, test=2, seed=5, supersample=1)
+    print(ensure_procedural_dataset(sys.argv[1], settings, progress=False, workers=int(sys.argv[2])))
+"""
+
+
+def _files(folder) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_a_killed_generation_resumes_to_the_same_bytes(tmp_path):
+    """kill -9 in the middle of a generation, then the same command: it continues from the chunks
+    already marked done and ends with the files of an uninterrupted run, byte for byte (also with
+    worker processes: the same seed gives the same dataset whatever the parallelism)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "generate.py"
+    script.write_text(GENERATE)
+    full = subprocess.run([sys.executable, str(script), str(tmp_path / "a"), "0"], capture_output=True, text=True,
+                          timeout=600)
+    assert full.returncode == 0, full.stderr[-2000:]
+    reference = _files(Path(full.stdout.strip().splitlines()[-1]))
+
+    cache = tmp_path / "b"
+    proc = subprocess.Popen([sys.executable, str(script), str(cache), "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)
+    deadline = time.time() + 300
+    while not list(cache.glob(".*.partial/done/*.done")) and time.time() < deadline:
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    partial = next(cache.glob(".*.partial"))
+    done_before = len(list((partial / "done").iterdir()))
+    assert 1 <= done_before < 10  # stopped part-way (10 chunks in all)
+    (partial / ".leftover.npz.abc.tmp").write_bytes(b"x")  # as an atomic write killed mid-way leaves
+    again = subprocess.run([sys.executable, str(script), str(cache), "2"], capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr[-2000:]
+    folder = Path(again.stdout.strip().splitlines()[-1])
+    assert _files(folder) == reference
+    assert [p.name for p in cache.iterdir()] == [folder.name]
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(categories=("teapot",)), "unknown procedural category 'teapot'"),
+    (dict(train=0, val=0, test=0), "no objects"),
+    (dict(voxel_rule="surface"), "voxel_rule must be one of"),
+    (dict(categories="chair"), "list of names"),
+    (dict(supersample=0), "supersample"),
+])
+def test_bad_settings_are_refused_with_a_clear_error(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        ProceduralSettings(**kwargs)
 
 
 def test_data_generation_leaves_numba_on_the_renderers_thread_pool():
