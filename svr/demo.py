@@ -10,9 +10,10 @@ Writes into ``--out`` (default ``outputs/demo``):
 * ``train/``: the training run (config.yaml, per-stage checkpoints and logs; svr/training.py);
 * the evaluation script's files (``svr.evaluate``: the benchmark IoU protocol, every view of every
   test object): ``table.md`` / ``table.csv`` in the paper's layout (categories as columns, mean
-  last) with the full model, the coarse stage alone and the mean training shape (the same
-  prediction for every input) as rows; ``iou.json`` (``{"split", "categories", "mean", ...}``,
-  the baselines under ``"extra"``); ``per_object.csv`` and ``per_image.csv``;
+  last) with the full model, the coarse stage alone and every baseline of ``svr.baselines`` (mean
+  shape, category mean shape, retrieval, the oracle) as rows, and ours minus retrieval;
+  ``iou.json`` (``{"split", "categories", "mean", ...}``, the coarse stage under ``"extra"``, the
+  baselines under ``"baselines"``); ``per_object.csv`` and ``per_image.csv``;
 * ``timings.json``: training, evaluation and total seconds;
 * ``predictions.png``: per category one test input beside renders of the predictions;
 * ``meshes/*.ply``: marching-cubes meshes of the full model's predictions for those inputs.
@@ -25,74 +26,9 @@ import time
 from pathlib import Path
 from typing import Optional, Sequence
 
-import numpy as np
 import torch
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-
-
-# ------------------------------------------------------------------------------------------------
-# The mean-shape baseline
-
-
-def protocol_voxels_of_shape(voxels: torch.Tensor) -> torch.Tensor:
-    """What the benchmark protocol makes of a voxel shape predicted as an SDF: its signed distance
-    grid (``svr.geometry.voxels_to_sdf``) -> marching cubes -> NMR voxelisation.
-
-    Args:
-        voxels: (32, 32, 32) bool (NMR frame).
-    Returns:
-        (32, 32, 32) bool (NMR frame).
-    """
-    from .geometry import voxels_to_sdf
-    from .metrics import voxels_protocol
-
-    values, lo, hi = voxels_to_sdf(np.asarray(voxels, dtype=bool))
-    return voxels_protocol(torch.from_numpy(values), lo, hi)[0]
-
-
-def mean_training_shape(train_voxels: torch.Tensor) -> tuple[torch.Tensor, float]:
-    """The best single prediction for every input, scored like a network's: the training objects'
-    mean occupancy thresholded at the level (0.05 .. 0.95) whose protocol voxels
-    (``protocol_voxels_of_shape``) have the highest mean IoU over the training objects.
-
-    Args:
-        train_voxels: (N, 32, 32, 32) bool ground truth of the training split (NMR voxel frame).
-    Returns:
-        ((32, 32, 32) bool protocol voxels of that shape, the threshold).
-    """
-    from .metrics import voxel_iou
-
-    if not isinstance(train_voxels, torch.Tensor) or train_voxels.ndim != 4 or train_voxels.shape[0] == 0:
-        shape = tuple(train_voxels.shape) if isinstance(train_voxels, torch.Tensor) else type(train_voxels).__name__
-        raise ValueError(f"train_voxels must be a non-empty (N, R, R, R) tensor, got {shape}")
-    occupancy = train_voxels.float().mean(0)
-    best, best_t, best_vox = -1.0, 0.5, None
-    for t in np.linspace(0.05, 0.95, 19):
-        vox = protocol_voxels_of_shape(occupancy >= t)
-        score = float(voxel_iou(vox.expand_as(train_voxels), train_voxels).mean())
-        if score > best:
-            best, best_t, best_vox = score, float(t), vox
-    return best_vox, best_t
-
-
-def constant_shape_table(shape: torch.Tensor, objects, result):
-    """The IoU table of predicting ``shape`` for every image that ``result`` scored.
-
-    Args:
-        shape: (32, 32, 32) bool voxels (NMR frame).
-        objects: the split's dataset (``datamodule.dataset(split)``).
-        result: svr.evaluate.EvaluationResult of the same split (its images are the ones scored).
-    Returns:
-        svr.metrics.IoUTable over the same images as ``result``.
-    """
-    from .metrics import iou_table, voxel_iou
-
-    cat = torch.as_tensor(result.category)
-    glob = torch.as_tensor(objects.offsets)[cat] + torch.as_tensor(result.object_index)
-    per_object = {int(g): float(voxel_iou(shape, objects.voxels(int(g)))) for g in torch.unique(glob)}
-    iou = np.array([per_object[int(g)] for g in glob], dtype=np.float64)
-    return iou_table(iou, result.category, result.categories)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -186,10 +122,11 @@ def stage_checkpoint(run_dir: Path, stage: str) -> Path:
 def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progress: bool = True,
                  protocol_workers: int = 0) -> dict:
     """Scores a finished demo run with the benchmark protocol (``svr.evaluate``): its last stage's
-    checkpoint, its coarse stage's checkpoint and the mean training shape, on the same images.
+    checkpoint, its coarse stage's checkpoint and every baseline (``svr.baselines``), on the same images.
 
     Writes into ``out_dir`` the evaluation script's files (``table.md``, ``table.csv``,
-    ``iou.json`` with the baselines under ``"extra"``, ``per_object.csv``, ``per_image.csv``),
+    ``iou.json`` with the coarse stage under ``"extra"`` and the baselines under ``"baselines"``,
+    ``per_object.csv``, ``per_image.csv``),
     ``predictions.png`` and ``meshes/``.
 
     Returns:
@@ -197,7 +134,8 @@ def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progres
     """
     from hydra.utils import instantiate
 
-    from .evaluate import evaluate, format_table, write_report
+    from .baselines import BASELINES
+    from .evaluate import add_baselines, evaluate, format_table, write_report
     from .infer import load_model
     from .models.module import load_network
 
@@ -207,13 +145,12 @@ def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progres
     final_ckpt, coarse_ckpt = stage_checkpoint(run_dir, schedule[-1]), stage_checkpoint(run_dir, schedule[0])
     kwargs = dict(progress=progress, protocol_workers=protocol_workers,
                   batch_size=int(cfg.data.get("eval_batch_size", 32)))
-    result = evaluate(load_model(final_ckpt, "cpu"), dm, split, **kwargs)
+    model = load_model(final_ckpt, "cpu")
+    result = evaluate(model, dm, split, **kwargs)
     extra = {}
     if coarse_ckpt != final_ckpt:
         extra["coarse stage alone"] = evaluate(load_model(coarse_ckpt, "cpu"), dm, split, **kwargs).table
-    train_set = dm.dataset("train")
-    shape, _ = mean_training_shape(torch.stack([train_set.voxels(i) for i in range(len(train_set))]))
-    extra["mean training shape"] = constant_shape_table(shape, dm.dataset(split), result)
+    result = add_baselines(result, dm, BASELINES, model, progress=progress)
     label = f"ours ({schedule[-1]} stage, {result.output})"
     files = write_report(result, out_dir, extra_rows=extra, label=label)
 

@@ -35,6 +35,7 @@ the GPU of its local rank. In Python: ``evaluate(..., distributed=True)`` inside
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -100,12 +101,15 @@ class EvaluationResult:
         split: "train", "val" or "test".
         dataset: a description of the data (kind and folder).
         categories: the data's (category id, name) pairs; ``category`` indexes them.
-        is_nmr_shapenet: every category is one of the 13 NMR ShapeNet ids (reference rows apply).
+        is_nmr_shapenet: the data is real NMR ShapeNet (the paper's reference rows apply); procedural
+            data with the same category ids is not.
         checkpoint: the model's file (None for a network given directly); stage: its training stage.
         output: which SDF the main row scores: "refined" or "coarse".
         category, object_index, view: (M,) int64.
         iou: (M,) float64 benchmark IoU of ``output``; iou_coarse: (M,) of the coarse SDF, or None.
         voxels: (M, 32, 32, 32) bool predicted voxels (NMR frame) of ``output``, if kept.
+        baselines: baseline name (``svr.baselines.BASELINES``) -> (M,) float64 IoU on the same images
+            (``add_baselines``).
         views_per_object: views evaluated per object (24 for the protocol).
         full_protocol: every view of every object was evaluated (no thinning).
         seconds: wall time.
@@ -127,6 +131,7 @@ class EvaluationResult:
     views_per_object: int = NUM_VIEWS
     full_protocol: bool = True
     seconds: float = 0.0
+    baselines: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def table(self) -> IoUTable:
@@ -137,12 +142,24 @@ class EvaluationResult:
     def coarse_table(self) -> Optional[IoUTable]:
         return iou_table(self.iou_coarse, self.category, self.categories) if self.iou_coarse is not None else None
 
+    def baseline_table(self, name: str) -> IoUTable:
+        """Per-category IoU of a baseline on the same images."""
+        return iou_table(self.baselines[name], self.category, self.categories)
+
+    def minus_retrieval(self) -> Optional[IoUTable]:
+        """Per category, our IoU minus the retrieval baseline's (None without that baseline)."""
+        if "retrieval" not in self.baselines:
+            return None
+        ours, ret = self.table, self.baseline_table("retrieval")
+        rows = tuple(dataclasses.replace(a, iou=a.iou - b.iou) for a, b in zip(ours.rows, ret.rows))
+        return IoUTable(rows, ours.mean - ret.mean)
+
     @property
     def present(self) -> list[int]:
         """Indices of the categories with at least one image: the table's columns, in the data's
-        order, or in the paper's table order for NMR ShapeNet."""
+        order, or in the paper's table order when every category is an NMR ShapeNet one."""
         cols = sorted(set(int(c) for c in np.unique(self.category)))
-        if self.is_nmr_shapenet:
+        if self.categories and all(c in NMR_CATEGORY_IDS for c, _ in self.categories):
             order = {cid: k for k, (cid, _) in enumerate(NMR_CATEGORIES)}
             cols.sort(key=lambda c: order[self.categories[c][0]])
         return cols
@@ -177,6 +194,8 @@ class EvaluationResult:
                    "worst_view": int(self.view[worst])}
             if self.iou_coarse is not None:
                 row["iou_coarse_mean"] = float(self.iou_coarse[sel].mean())
+            for name, values in self.baselines.items():
+                row[f"iou_{name}_mean"] = float(values[sel].mean())
             rows.append(row)
         rows.sort(key=lambda r: (r["iou_mean"], r["category_id"], r["object_index"]))
         return rows
@@ -205,10 +224,20 @@ class EvaluationResult:
                         "mean = unweighted mean over categories",
             "seconds": self.seconds,
         }
+        def summary(t: IoUTable) -> dict[str, Any]:
+            return {"categories": {t.rows[c].name: t.rows[c].iou for c in self.present}, "mean": t.mean}
+
         coarse = self.coarse_table
         if coarse is not None:
-            out["coarse"] = {"categories": {coarse.rows[c].name: coarse.rows[c].iou for c in self.present},
-                             "mean": coarse.mean}
+            out["coarse"] = summary(coarse)
+        if self.baselines:
+            from .baselines import DESCRIPTIONS, LABELS
+
+            out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
+                                       **summary(self.baseline_table(name))} for name in self.baselines}
+        minus = self.minus_retrieval()
+        if minus is not None:
+            out["ours_minus_retrieval"] = summary(minus)
         if self.is_nmr_shapenet:
             out["reference"] = {r.method: {"mean": r.mean, "categories": {
                 name: r.categories[cid] for cid, name in self.categories if cid in r.categories}}
@@ -236,7 +265,8 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
                      dataset: str = "", views: Optional[Sequence[int]] = None,
                      max_objects_per_category: Optional[int] = None, batch_size: int = 32, num_workers: int = 0,
                      compare_coarse: bool = False, protocol_workers: int = 0, keep_voxels: bool = False,
-                     progress: bool = True, distributed: bool = False) -> EvaluationResult:
+                     progress: bool = True, distributed: bool = False,
+                     nmr_shapenet: Optional[bool] = None) -> EvaluationResult:
     """Runs the benchmark protocol over the (object, view) images of a split's objects.
 
     Args:
@@ -257,6 +287,9 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
             (``svr.distributed.shard_indices``, without padding), then every rank's per-image
             results are gathered in rank order, which is the single-process order. A collective:
             every rank must call it with the same arguments; every rank returns the whole result.
+        nmr_shapenet: whether the data is real NMR ShapeNet (the paper's reference rows apply);
+            None: when every category id is an NMR ShapeNet id and ``objects`` is not a generated
+            procedural dataset.
     Raises:
         ValueError naming ``distributed`` when it is True without an initialised process group.
     """
@@ -331,7 +364,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
 
     result = EvaluationResult(
         split=split, dataset=dataset, categories=categories,
-        is_nmr_shapenet=bool(categories) and all(c in NMR_CATEGORY_IDS for c, _ in categories),
+        is_nmr_shapenet=_is_nmr_shapenet(objects, categories) if nmr_shapenet is None else bool(nmr_shapenet),
         checkpoint=str(m.checkpoint) if m.checkpoint is not None else None, stage=m.stage, output=m.output_name,
         category=cat(cats, np.int64), object_index=cat(objs, np.int64), view=cat(vws, np.int64),
         iou=cat(ious, np.float64), iou_coarse=cat(ious_c, np.float64) if with_coarse else None,
@@ -343,6 +376,34 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
     if len(result.iou) != len(items):
         raise RuntimeError(f"gathered {len(result.iou)} per-image results for {len(items)} images")
     return result
+
+
+def _is_nmr_shapenet(objects, categories: Sequence[tuple[str, str]]) -> bool:
+    """Real NMR ShapeNet: the 13 benchmark ids, and not our procedural data (which uses the same ids)."""
+    from .baselines import oracle_available
+
+    return bool(categories) and all(c in NMR_CATEGORY_IDS for c, _ in categories) and not (
+        hasattr(objects, "root") and oracle_available(objects))
+
+
+def add_baselines(result: EvaluationResult, datamodule, names: Sequence[str], model: ModelLike,
+                  progress: bool = True) -> EvaluationResult:
+    """The result with the baselines (``svr.baselines``) scored on the same images and split.
+
+    Args:
+        datamodule: the evaluated data module (its training split feeds the baselines).
+        names: baselines (``svr.baselines.BASELINES``); "oracle" is left out on real NMR data.
+        model: the evaluated model (the oracle samples the exact shapes on its grid).
+    """
+    from .baselines import check_baselines, score_baselines
+
+    names = check_baselines(names)
+    if not names:
+        return result
+    m = as_model(model)
+    scores = score_baselines(names, result, datamodule.dataset(result.split), datamodule.dataset("train"),
+                             m.half_side, m.grid_resolution, progress=progress)
+    return dataclasses.replace(result, baselines={**result.baselines, **scores})
 
 
 def _distributed_ranks(distributed: bool) -> RankInfo:
@@ -404,8 +465,8 @@ def evaluate(model: ModelLike, datamodule, split: str = "test", **kwargs) -> Eva
 # Tables
 
 
-def _fmt(x: Optional[float]) -> str:
-    return "" if x is None or not math.isfinite(x) else f"{x:.4f}"
+def _fmt(x: Optional[float], signed: bool = False) -> str:
+    return "" if x is None or not math.isfinite(x) else (f"{x:+.4f}" if signed else f"{x:.4f}")
 
 
 ExtraRows = Optional[Mapping[str, IoUTable]]
@@ -437,9 +498,18 @@ def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
     coarse = result.coarse_table
     if coarse is not None:
         rows.append(["ours (coarse)"] + [_fmt(coarse.rows[c].iou) for c in cols] + [_fmt(coarse.mean)])
-    for name, extra in _check_extra(extra_rows).items():
+    named = list(_check_extra(extra_rows).items())
+    if result.baselines:
+        from .baselines import LABELS
+
+        named += [(LABELS[name], result.baseline_table(name)) for name in result.baselines]
+    minus = result.minus_retrieval()
+    if minus is not None:
+        named.append(("ours - retrieval", minus))
+    for name, extra in named:
         by_id = {r.category_id: r.iou for r in extra.rows}
-        rows.append([name] + [_fmt(by_id.get(table.rows[c].category_id)) for c in cols] + [_fmt(extra.mean)])
+        rows.append([name] + [_fmt(by_id.get(table.rows[c].category_id), signed=extra is minus)
+                              for c in cols] + [_fmt(extra.mean, signed=extra is minus)])
     rows.append(["images"] + [str(table.rows[c].images) for c in cols] + [str(len(result.iou))])
     if result.is_nmr_shapenet:
         for ref in PAPER_REFERENCE_ROWS:
@@ -454,17 +524,26 @@ def table_notes(result: EvaluationResult) -> list[str]:
     if not result.full_protocol:
         notes.append(f"Thinned run ({result.views_per_object} views per object or fewer objects): "
                      "not the benchmark protocol's number.")
+    if result.baselines:
+        from .baselines import DESCRIPTIONS, LABELS
+
+        notes.append("Baselines, scored on the same images by the same protocol: " + "; ".join(
+            f"{LABELS[n]}: {DESCRIPTIONS[n]}" for n in result.baselines) + ".")
     if result.is_nmr_shapenet:
+        per_category = float(np.mean(list(PAPER_SDFDIFF_IOU.values())))
         notes.append("Reference rows: the SDFDiff paper's table (NMR ShapeNet test split, SPEC sections 3 and 5). "
                      "Only SDFDiff's per-category values are known here; the NMR and SoftRas rows give "
                      "their means only.")
+        notes.append(f"SDFDiff (paper): the printed mean is {PAPER_SDFDIFF_MEAN_IOU:.4f}, but its 13 per-category "
+                     f"values average {per_category:.4f}; the row shows the printed one.")
         if len(result.present) < len(NMR_CATEGORY_IDS):
             notes.append(f"Our mean is over the {len(result.present)} categories evaluated; the reference means "
                          "are over all 13.")
         if result.split != "test":
             notes.append(f"The reference rows are test-split numbers; this is the {result.split} split.")
     else:
-        notes.append("Reference rows are shown for NMR ShapeNet only (the paper's benchmark).")
+        notes.append("The paper's reference rows belong to real NMR ShapeNet and are not shown: numbers on "
+                     "other data, procedural data with the same categories included, are not comparable to them.")
     return notes
 
 
@@ -511,10 +590,10 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
         "json": write_json(folder / "iou.json", summary),
     }
     obj_columns = ["category_id", "category", "object_index", "views", "iou_mean", "iou_min", "worst_view"] + (
-        ["iou_coarse_mean"] if result.iou_coarse is not None else [])
+        ["iou_coarse_mean"] if result.iou_coarse is not None else []) + [f"iou_{n}_mean" for n in result.baselines]
     files["per_object"] = write_csv(folder / "per_object.csv", result.per_object(), obj_columns)
     img_columns = ["category_id", "category", "object_index", "view", "iou"] + (
-        ["iou_coarse"] if result.iou_coarse is not None else [])
+        ["iou_coarse"] if result.iou_coarse is not None else []) + [f"iou_{n}" for n in result.baselines]
     img_rows = []
     for i in range(len(result.iou)):
         cid, name = result.categories[int(result.category[i])]
@@ -522,6 +601,8 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
                "view": int(result.view[i]), "iou": float(result.iou[i])}
         if result.iou_coarse is not None:
             row["iou_coarse"] = float(result.iou_coarse[i])
+        for n, values in result.baselines.items():
+            row[f"iou_{n}"] = float(values[i])
         img_rows.append(row)
     files["per_image"] = write_csv(folder / "per_image.csv", img_rows, img_columns)
     return files
@@ -587,6 +668,10 @@ def _run(cfg, ranks: RankInfo) -> EvaluationResult:
                       distributed=ranks.world_size > 1)
     if not ranks.is_zero:
         return result
+    baselines = cfg.get("baselines")
+    if OmegaConf.is_list(baselines):
+        baselines = OmegaConf.to_container(baselines)
+    result = add_baselines(result, datamodule, baselines, model, progress=bool(cfg.get("progress", True)))
     print()
     print(format_table(result))
     files = write_report(result, folder)
@@ -621,5 +706,5 @@ if __name__ == "__main__":
     main()
 
 
-__all__ = ["ReferenceRow", "PAPER_REFERENCE_ROWS", "EvaluationResult", "evaluate", "evaluate_objects",
+__all__ = ["ReferenceRow", "PAPER_REFERENCE_ROWS", "EvaluationResult", "evaluate", "evaluate_objects", "add_baselines",
            "describe_data", "table_rows", "table_notes", "format_table", "write_report"]

@@ -135,6 +135,11 @@ class LoadedModel:
         return self.net.half_side
 
     @property
+    def grid_resolution(self) -> int:
+        """N of the N^3 SDF grids the network outputs."""
+        return int(self.net.decoder.grid_resolution)
+
+    @property
     def image_size(self) -> int:
         return int(getattr(self.net.encoder, "image_size", 64))
 

@@ -416,6 +416,14 @@ class NMRDataset(torch.utils.data.Dataset):
             return np.array(images[o])  # a copy: the memory map is read-only
         return np.asarray(images[o][np.asarray(view_ids, dtype=np.int64)])
 
+    def silhouettes(self, view: int) -> np.ndarray:
+        """(N, 64, 64) uint8 alpha channel of one view of every object, in dataset order (one strided
+        read per category of the memory-mapped arrays)."""
+        if isinstance(view, bool) or not isinstance(view, (int, np.integer)) or not 0 <= view < NUM_VIEWS:
+            raise ValueError(f"view must be an int in [0, {NUM_VIEWS}), got {view!r}")
+        parts = [np.asarray(images[:, int(view), 3]) for images, _ in self._open()]
+        return np.concatenate(parts) if parts else np.zeros((0, 64, 64), np.uint8)
+
     def views(self, index: int, view_ids: Optional[Sequence[int]] = None) -> torch.Tensor:
         """(V, 4, 64, 64) float32 views of object ``index`` (RGB on white, see ``images_to_float``)."""
         return images_to_float(self.images_uint8(index, view_ids), self.black_background)

@@ -1,15 +1,13 @@
-"""svr.demo (what `make demo` runs) at toy size: the three stages, the evaluation table with the two
-baselines in the evaluation script's format, pictures and meshes, and resuming a stopped run."""
+"""svr.demo (what `make demo` runs) at toy size: the three stages, the evaluation table with the coarse
+stage and every baseline in the evaluation script's format, pictures and meshes, and resuming a stopped run."""
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
 import pytest
-import torch
 
-from svr.demo import main, mean_training_shape, protocol_voxels_of_shape, resume_point
-from svr.metrics import voxel_iou
+from svr.demo import main, resume_point
 
 
 def tiny(cache: Path) -> list[str]:
@@ -25,12 +23,14 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     args = ["--out", str(out), "--quiet", "--protocol-workers", "0", *tiny(tmp_path / "cache")]
     main(args)
     printed = capsys.readouterr().out
-    for row in ("ours (joint stage, refined)", "coarse stage alone", "mean training shape"):
-        assert row in printed and row in (out / "table.md").read_text()
+    for row in ("ours (joint stage, refined)", "coarse stage alone", "mean shape", "category mean shape",
+                "retrieval", "oracle (exact shape)", "ours - retrieval"):
+        assert f"| {row}" in printed and f"| {row}" in (out / "table.md").read_text()
     summary = json.loads((out / "iou.json").read_text())
     assert summary["split"] == "test" and set(summary["categories"]) == {"chair", "mug"}
-    assert set(summary["extra"]) == {"coarse stage alone", "mean training shape"}
-    for name, row in summary["extra"].items():
+    assert set(summary["extra"]) == {"coarse stage alone"}
+    assert set(summary["baselines"]) == {"mean_shape", "category_mean_shape", "retrieval", "oracle"}
+    for name, row in [*summary["extra"].items(), *summary["baselines"].items()]:
         assert set(row["categories"]) == {"chair", "mug"} and 0.0 <= row["mean"] <= 1.0, name
     assert summary["num_images"] == 2 * 24 and summary["full_protocol"]
     for f in ("table.csv", "per_object.csv", "per_image.csv", "predictions.png", "timings.json"):
@@ -66,19 +66,3 @@ def test_resume_point_and_eval_only_errors(tmp_path):
     assert resume_point(tmp_path, ["coarse", "refine"]) == (False, tmp_path / "coarse" / "checkpoints" / "last.ckpt")
     with pytest.raises(SystemExit, match="--eval-only needs a finished run"):
         main(["--out", str(tmp_path / "nothing"), "--eval-only", "--quiet"])
-
-
-def test_mean_training_shape_is_scored_through_the_protocol():
-    a = torch.zeros(3, 32, 32, 32, dtype=torch.bool)
-    a[:, 8:24, 8:24, 8:24] = True    # a core every object shares
-    a[0, 2:8, :, :] = True           # one object's own slab
-    shape, threshold = mean_training_shape(a)
-    # The slab is in 1 of 3 objects: the best constant shape is the core, as the protocol sees it
-    # (marching cubes of its SDF, then the benchmark's dilated voxelisation).
-    assert torch.equal(shape, protocol_voxels_of_shape(a[1]))
-    assert shape.sum() > a[1].sum() and (shape & a[1]).sum() == a[1].sum()
-    best = float(voxel_iou(shape.expand_as(a), a).mean())
-    assert best > float(voxel_iou(protocol_voxels_of_shape(a[0]).expand_as(a), a).mean())
-    assert 0.05 <= threshold <= 0.95
-    with pytest.raises(ValueError, match="train_voxels"):
-        mean_training_shape(torch.zeros(0, 8, 8, 8, dtype=torch.bool))

@@ -343,7 +343,8 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
 
 def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
     """torchrun, 2 processes, 9 images (5 + 4): the same files as a single-process evaluation."""
-    from svr.evaluate import evaluate, write_report
+    from svr.baselines import BASELINES
+    from svr.evaluate import add_baselines, evaluate, write_report
     from svr.infer import load_model
 
     cache, settings = ddp_run["cache"], ddp_run["settings"]
@@ -359,9 +360,10 @@ def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
     assert "and 1 more processes" in proc.stdout
     assert proc.stdout.count("wrote ") == 1  # rank 0 alone prints and writes
 
-    result = evaluate(load_model(ckpt, "cpu"), datamodule(cache, settings), "test", views=EVAL_VIEWS,
-                      batch_size=4, progress=False)
+    model, dm = load_model(ckpt, "cpu"), datamodule(cache, settings)
+    result = evaluate(model, dm, "test", views=EVAL_VIEWS, batch_size=4, progress=False)
     assert len(result.iou) == 3 * len(EVAL_VIEWS)
+    result = add_baselines(result, dm, BASELINES, model, progress=False)  # as the command line does by default
     write_report(result, tmp_path / "single")
     for name in ("table.md", "table.csv", "per_image.csv", "per_object.csv"):
         assert (out / name).read_text() == (tmp_path / "single" / name).read_text(), name

@@ -104,7 +104,14 @@ def test_main_prints_and_writes_the_table(tiny_run, tmp_path, capsys, monkeypatc
     with open(out / "table.csv") as f:
         rows = list(csv.reader(f))
     assert rows[0] == ["method", "chair", "mug", "mean"] and rows[1][0] == "ours (refined)"
-    assert (out / "table.md").read_text().count("| ours") == 2
+    assert (out / "table.md").read_text().count("| ours (") == 2
+    # Every baseline is a row, scored on the same images, and ours minus retrieval is shown.
+    assert set(summary["baselines"]) == {"mean_shape", "category_mean_shape", "retrieval", "oracle"}
+    for row in summary["baselines"].values():
+        assert set(row["categories"]) == set(CATEGORIES)
+    minus = summary["ours_minus_retrieval"]["mean"]
+    assert minus == pytest.approx(summary["mean"] - summary["baselines"]["retrieval"]["mean"])
+    assert "| ours - retrieval" in printed and "| oracle (exact shape)" in printed
     with open(out / "per_object.csv") as f:
         objects = list(csv.DictReader(f))
     assert len(objects) == 2 and {o["category"] for o in objects} == set(CATEGORIES)

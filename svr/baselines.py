@@ -1,0 +1,293 @@
+"""Baselines of the single-view benchmark, scored on the same images and by the same protocol as a model.
+
+A learnt model's IoU means little alone. These rows bound it on the same data (SPEC section 5):
+
+* ``mean_shape``: one shape for every input: the training objects' mean occupancy, thresholded at
+  the level whose protocol voxels fit the training objects best.
+* ``category_mean_shape``: one shape per category, the mean of the category's training signed
+  distance grids (``svr.geometry.voxels_to_sdf`` of their voxels) at the iso-level that fits them
+  best. It is told the category, which the model is not: an optimistic version of the above.
+* ``retrieval``: for each test image, the training object whose stored silhouette in the same view
+  is most similar (soft IoU of the alpha channels at 32^2) to the input's alpha; its ground-truth
+  voxels are the prediction. The camera is known, as it is to the model; the category is not. The
+  bar a learnt model must clear to show it learnt shape rather than looked it up (published on NMR
+  ShapeNet: 0.4766 mean IoU).
+* ``oracle``: the exact (analytic) shape's SDF sampled on the model's grid, clipped to the object
+  box as predictions are (``svr.geometry.clip_to_box``), through the protocol: the ceiling of what a
+  model with that grid can score. Procedural data only (it needs the analytic shapes).
+
+The two mean shapes are predicted as SDFs and go through the protocol (marching cubes, the
+benchmark's voxelisation) like a model's output. Retrieval's prediction is a training object's
+ground truth, already in the benchmark's voxel form, so it is compared as it is: voxelising it
+again would dilate it by the protocol's surface voxels. ``score_baselines`` returns per-image IoU
+aligned with an ``svr.evaluate.EvaluationResult``'s images.
+"""
+from __future__ import annotations
+
+from typing import Callable, Mapping, Optional, Sequence
+
+import numpy as np
+import torch
+
+from .metrics import voxel_iou, voxels_protocol
+
+BASELINES: tuple[str, ...] = ("mean_shape", "category_mean_shape", "retrieval", "oracle")
+LABELS: Mapping[str, str] = {
+    "mean_shape": "mean shape",
+    "category_mean_shape": "category mean shape",
+    "retrieval": "retrieval",
+    "oracle": "oracle (exact shape)",
+}
+DESCRIPTIONS: Mapping[str, str] = {
+    "mean_shape": "one shape for every input: the training objects' mean occupancy at the best threshold",
+    "category_mean_shape": "the mean of the category's training SDFs (told the category: optimistic)",
+    "retrieval": "the ground truth of the training object whose silhouette in the same view is most "
+                 "similar to the input's (soft IoU of the alpha channels)",
+    "oracle": "the exact shape's SDF sampled on the model's grid, through the protocol: the ceiling",
+}
+# Objects whose voxels are held in memory at once while a mean shape is accumulated or scored.
+_CHUNK = 2048
+
+
+def check_baselines(names: Optional[Sequence[str]]) -> tuple[str, ...]:
+    """Validates a list of baseline names (``BASELINES``); None or empty -> ()."""
+    if names is None:
+        return ()
+    if isinstance(names, str):
+        raise ValueError(f"baselines must be a list of names from {list(BASELINES)}, got the string {names!r}")
+    out = []
+    for n in names:
+        if n not in BASELINES:
+            raise ValueError(f"baselines: unknown baseline {n!r}; expected some of {list(BASELINES)}")
+        if n not in out:
+            out.append(str(n))
+    return tuple(out)
+
+
+def _voxel_chunks(objects, indices: Sequence[int]):
+    """Yields (N_k, 32, 32, 32) bool tensors of the objects' voxels, ``_CHUNK`` objects at a time."""
+    indices = list(indices)
+    for a in range(0, len(indices), _CHUNK):
+        yield torch.stack([objects.voxels(int(i)) for i in indices[a:a + _CHUNK]])
+
+
+def _best_shape(candidates: Sequence[torch.Tensor], objects, indices: Sequence[int]) -> tuple[torch.Tensor, int]:
+    """The candidate voxel shape with the highest mean IoU over the given objects, and its index."""
+    totals = np.zeros(len(candidates))
+    for gt in _voxel_chunks(objects, indices):
+        for k, cand in enumerate(candidates):
+            totals[k] += float(voxel_iou(cand.expand_as(gt), gt).sum())
+    k = int(np.argmax(totals))
+    return candidates[k], k
+
+
+def protocol_voxels_of_voxels(voxels) -> torch.Tensor:
+    """What the benchmark protocol makes of a voxel shape predicted as an SDF: its signed distance
+    grid (``svr.geometry.voxels_to_sdf``) -> marching cubes -> the benchmark's voxelisation.
+
+    Args:
+        voxels: (32, 32, 32) bool (NMR frame).
+    Returns:
+        (32, 32, 32) bool (NMR frame).
+    """
+    from .geometry import voxels_to_sdf
+
+    values, lo, hi = voxels_to_sdf(np.asarray(voxels, dtype=bool))
+    return voxels_protocol(torch.from_numpy(values), lo, hi)[0]
+
+
+MEAN_SHAPE_THRESHOLDS = tuple(float(t) for t in np.linspace(0.05, 0.95, 19))
+
+
+def mean_shape(train) -> tuple[torch.Tensor, float]:
+    """The best single prediction for every input, scored like a network's: the training objects'
+    mean occupancy thresholded at the level (``MEAN_SHAPE_THRESHOLDS``) whose protocol voxels have
+    the highest mean IoU over the training objects. Memory: one chunk of voxels at a time.
+
+    Args:
+        train: the training split (``svr.data.nmr.NMRDataset``: ``len``, ``voxels(i)``).
+    Returns:
+        ((32, 32, 32) bool protocol voxels of that shape, the threshold).
+    """
+    n = len(train)
+    if n == 0:
+        raise ValueError("mean_shape needs a non-empty training split")
+    counts = None
+    for gt in _voxel_chunks(train, range(n)):
+        c = gt.sum(0, dtype=torch.int64)
+        counts = c if counts is None else counts + c
+    occupancy = counts.double() / n
+    candidates = [protocol_voxels_of_voxels(occupancy >= t) for t in MEAN_SHAPE_THRESHOLDS]
+    shape, k = _best_shape(candidates, train, range(n))
+    return shape, MEAN_SHAPE_THRESHOLDS[k]
+
+
+# Iso-levels tried for a mean SDF, in voxels of the 32^3 grid (0 = the mean's own zero level).
+CATEGORY_MEAN_LEVELS = tuple(float(x) for x in np.arange(-1.5, 1.51, 0.25))
+
+
+def category_mean_shapes(train) -> dict[int, torch.Tensor]:
+    """Per category of the training split: the mean of its objects' signed distance grids
+    (``voxels_to_sdf``), meshed at the level (``CATEGORY_MEAN_LEVELS``) whose protocol voxels have the
+    highest mean IoU over the category's training objects.
+
+    Returns:
+        {category index: (32, 32, 32) bool protocol voxels}, for the categories with objects.
+    """
+    from .geometry import voxels_to_sdf
+
+    out = {}
+    for c, count in enumerate(train.counts):
+        if count == 0:
+            continue
+        idx = range(int(train.offsets[c]), int(train.offsets[c + 1]))
+        total, lo, hi = None, -1.0, 1.0
+        for i in idx:
+            values, lo, hi = voxels_to_sdf(train.voxels(i).numpy())
+            total = values if total is None else total + values
+        mean = torch.from_numpy(total / count)
+        voxel = 1.0 / 31.0
+        candidates = [voxels_protocol(mean - level * voxel, lo, hi)[0] for level in CATEGORY_MEAN_LEVELS]
+        out[c], _ = _best_shape(candidates, train, idx)
+    return out
+
+
+def _alpha_features(alpha_uint8: np.ndarray) -> torch.Tensor:
+    """(N, 64, 64) uint8 alpha -> (N, 1024) float32 in [0, 1], 2x2 box-averaged to 32^2 (robust to
+    one-pixel shifts, 4x cheaper to compare)."""
+    a = torch.from_numpy(np.ascontiguousarray(alpha_uint8)).float().div_(255.0)
+    n, h, w = a.shape
+    return a.reshape(n, h // 2, 2, w // 2, 2).mean((2, 4)).reshape(n, -1)
+
+
+def retrieve(train, queries: np.ndarray, views: np.ndarray, chunk: int = 1024,
+             progress: Optional[Callable[[int], None]] = None) -> np.ndarray:
+    """Nearest training object by silhouette, per query image.
+
+    For each query, the training object (any category) whose alpha in the query's view has the
+    highest soft IoU ``<a, b> / (|a| + |b| - <a, b>)`` with the query's alpha; ties go to the lower
+    index. Per view, the training silhouettes of that view are read once (N x 1024 float32) and the
+    queries compared in chunks, so memory stays at one view's features plus a chunk x N block.
+
+    Args:
+        train: the training split (``NMRDataset``: ``silhouettes(view)``).
+        queries: (Q, 64, 64) uint8 alpha of the query images.
+        views: (Q,) int view index (0..23) of each query.
+        progress: called with the number of queries done after each chunk.
+    Returns:
+        (Q,) int64 global training object indices.
+    """
+    queries = np.asarray(queries)
+    views = np.asarray(views, dtype=np.int64).reshape(-1)
+    if queries.ndim != 3 or len(queries) != len(views):
+        raise ValueError(f"queries must be (Q, H, W) with one view per query, got {queries.shape} and {views.shape}")
+    if len(train) == 0:
+        raise ValueError("retrieval needs a non-empty training split")
+    out = np.full(len(views), -1, dtype=np.int64)
+    for v in np.unique(views):
+        bank = _alpha_features(train.silhouettes(int(v)))
+        bank_area = bank.sum(1)
+        rows = np.flatnonzero(views == v)
+        for a in range(0, len(rows), chunk):
+            sel = rows[a:a + chunk]
+            q = _alpha_features(queries[sel])
+            inter = q @ bank.T
+            union = q.sum(1, keepdim=True) + bank_area[None, :] - inter
+            out[sel] = torch.argmax(inter / union.clamp(min=1e-6), dim=1).numpy()
+            if progress is not None:
+                progress(len(sel))
+    return out
+
+
+def oracle_voxels(root, category_id: str, split: str, index: int, half_side: float,
+                  grid_resolution: int) -> torch.Tensor:
+    """The protocol voxels of a procedural object's exact SDF sampled on a model's grid.
+
+    Args:
+        root: the generated procedural dataset's folder (its metadata.json has the seeds).
+        half_side, grid_resolution: the model's grid, ``grid_resolution``^3 samples over
+            ``[-half_side, half_side]^3``.
+    Returns:
+        (32, 32, 32) bool (NMR frame).
+    """
+    from .data.procedural import dataset_shape
+    from .geometry import clip_to_box
+
+    shape = dataset_shape(root, category_id, split, index)
+    axis = np.linspace(-half_side, half_side, grid_resolution)
+    values = torch.from_numpy(shape.sdf_numpy(np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1)))
+    return voxels_protocol(clip_to_box(values, -half_side, half_side), -half_side, half_side)[0]
+
+
+def oracle_available(objects) -> bool:
+    """Whether a split's dataset is a generated procedural one (the oracle needs its analytic shapes)."""
+    from .data.procedural import read_settings
+
+    try:
+        read_settings(objects.root)
+    except ValueError:
+        return False
+    return True
+
+
+def score_baselines(names: Sequence[str], result, objects, train, half_side: float, grid_resolution: int,
+                    progress: bool = True) -> dict[str, np.ndarray]:
+    """Per-image IoU of each baseline on the images an evaluation scored.
+
+    Args:
+        names: baselines to score (``BASELINES``); "oracle" is skipped where ``oracle_available``
+            is False (real NMR data).
+        result: ``svr.evaluate.EvaluationResult`` (its category, object_index and view arrays).
+        objects: the evaluated split's dataset; train: the training split of the same data
+            (same categories, same order).
+        half_side, grid_resolution: the model's grid (for the oracle).
+    Returns:
+        {name: (M,) float64 IoU}, M = the result's images, in its order.
+    """
+    from tqdm.auto import tqdm
+
+    names = check_baselines(names)
+    if [c for c, _ in getattr(train, "categories", [])] != [c for c, _ in result.categories]:
+        raise ValueError("the training split's categories differ from the evaluated data's")
+    glob = np.asarray(objects.offsets)[result.category] + result.object_index
+    uniq = np.unique(glob)
+    gt = {int(g): objects.voxels(int(g)) for g in uniq}
+    out: dict[str, np.ndarray] = {}
+
+    def per_object(pred_of: Callable[[int], torch.Tensor]) -> np.ndarray:
+        score = {g: float(voxel_iou(pred_of(g), gt[g])) for g in gt}
+        return np.array([score[int(g)] for g in glob], dtype=np.float64)
+
+    for name in names:
+        if name == "mean_shape":
+            shape, _ = mean_shape(train)
+            out[name] = per_object(lambda g: shape)
+        elif name == "category_mean_shape":
+            shapes = category_mean_shapes(train)
+            out[name] = per_object(lambda g: shapes[objects.category_of(g)])
+        elif name == "retrieval":
+            found = np.empty(len(glob), dtype=np.int64)
+            with tqdm(total=len(glob), desc="retrieval baseline", unit="img", disable=not progress) as bar:
+                for v in np.unique(result.view):  # one view's queries in memory at a time
+                    sel = np.flatnonzero(result.view == v)
+                    queries = np.stack([objects.images_uint8(int(g), [int(v)])[0, 3] for g in glob[sel]])
+                    found[sel] = retrieve(train, queries, result.view[sel], progress=bar.update)
+            ious = np.empty(len(glob), dtype=np.float64)
+            for k, (g, t) in enumerate(zip(glob, found)):
+                ious[k] = float(voxel_iou(train.voxels(int(t)), gt[int(g)]))
+            out[name] = ious
+        elif name == "oracle":
+            if not oracle_available(objects):
+                continue
+            split = objects.split
+
+            def oracle(g: int) -> torch.Tensor:
+                c, o = objects.locate(g)
+                return oracle_voxels(objects.root, result.categories[c][0], split, o, half_side, grid_resolution)
+
+            out[name] = per_object(oracle)
+    return out
+
+
+__all__ = ["BASELINES", "LABELS", "DESCRIPTIONS", "check_baselines", "protocol_voxels_of_voxels", "mean_shape",
+           "category_mean_shapes", "retrieve", "oracle_voxels", "oracle_available", "score_baselines"]
