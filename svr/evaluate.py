@@ -224,6 +224,7 @@ class EvaluationResult:
                         "mean = unweighted mean over categories",
             "seconds": self.seconds,
         }
+
         def summary(t: IoUTable) -> dict[str, Any]:
             return {"categories": {t.rows[c].name: t.rows[c].iou for c in self.present}, "mean": t.mean}
 
