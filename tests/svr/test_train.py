@@ -229,7 +229,9 @@ def test_command_line_multirun_and_killed_run_resumes(tmp_path, data_overrides):
     """train.py -m runs one folder per job, each with its resolved config; a run killed with
     SIGKILL resumes from its last.ckpt."""
     base = [sys.executable, str(REPO / "train.py"), *tiny_overrides(data_overrides, 2)]
-    sweep = subprocess.run([*base, "-m", "seed=0,1", "stage=coarse", f"hydra.sweep.dir={tmp_path / 'sweep'}"],
+    # Hydra's flags go before the overrides: argparse does not take a flag after its positional list.
+    sweep = subprocess.run([base[0], base[1], "-m", *base[2:], "seed=0,1", "stage=coarse",
+                            f"hydra.sweep.dir={tmp_path / 'sweep'}"],
                            cwd=REPO, capture_output=True, text=True, timeout=600)
     assert sweep.returncode == 0, sweep.stderr[-3000:]
     for job in ("0", "1"):
