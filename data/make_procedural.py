@@ -14,7 +14,6 @@ Prints the folder, the time and the size on disk.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from svr.data.procedural import (ALL_CATEGORIES, VOXEL_RULES, ProceduralSettings,  # noqa: E402
+from svr.data.procedural import (ALL_CATEGORIES, VOXEL_RULES, ProceduralSettings, default_workers,  # noqa: E402
                                  ensure_procedural_dataset, generate_procedural_dataset)
 
 PRESETS = {"demo": "procedural.yaml", "bench": "procedural_bench.yaml"}
@@ -66,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--supersample", type=int, default=None, help="rays per pixel side")
     parser.add_argument("--voxel-rule", default=None, choices=VOXEL_RULES,
                         help="ground-truth voxels: the benchmark's voxelisation (protocol) or centre inside")
-    parser.add_argument("--workers", type=int, default=len(os.sched_getaffinity(0)),
+    parser.add_argument("--workers", type=int, default=default_workers(),
                         help="generating processes (default: one per core; 0: this process)")
     args = parser.parse_args(argv)
     values = preset_settings(args.preset)

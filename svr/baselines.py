@@ -219,24 +219,13 @@ def oracle_voxels(root, category_id: str, split: str, index: int, half_side: flo
     return voxels_protocol(clip_to_box(values, -half_side, half_side), -half_side, half_side)[0]
 
 
-def oracle_available(objects) -> bool:
-    """Whether a split's dataset is a generated procedural one (the oracle needs its analytic shapes)."""
-    from .data.procedural import read_settings
-
-    try:
-        read_settings(objects.root)
-    except ValueError:
-        return False
-    return True
-
-
 def score_baselines(names: Sequence[str], result, objects, train, half_side: float, grid_resolution: int,
                     progress: bool = True) -> dict[str, np.ndarray]:
     """Per-image IoU of each baseline on the images an evaluation scored.
 
     Args:
-        names: baselines to score (``BASELINES``); "oracle" is skipped where ``oracle_available``
-            is False (real NMR data).
+        names: baselines to score (``BASELINES``); "oracle" is skipped where the data is not a
+            generated procedural dataset (``svr.data.procedural.is_procedural_dataset``: real NMR data).
         result: ``svr.evaluate.EvaluationResult`` (its category, object_index and view arrays).
         objects: the evaluated split's dataset; train: the training split of the same data
             (same categories, same order).
@@ -277,7 +266,9 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
                 ious[k] = float(voxel_iou(train.voxels(int(t)), gt[int(g)]))
             out[name] = ious
         elif name == "oracle":
-            if not oracle_available(objects):
+            from .data.procedural import is_procedural_dataset
+
+            if not is_procedural_dataset(objects.root):
                 continue
             split = objects.split
 
@@ -290,4 +281,4 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
 
 
 __all__ = ["BASELINES", "LABELS", "DESCRIPTIONS", "check_baselines", "protocol_voxels_of_voxels", "mean_shape",
-           "category_mean_shapes", "retrieve", "oracle_voxels", "oracle_available", "score_baselines"]
+           "category_mean_shapes", "retrieve", "oracle_voxels", "score_baselines"]

@@ -381,10 +381,10 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
 
 def _is_nmr_shapenet(objects, categories: Sequence[tuple[str, str]]) -> bool:
     """Real NMR ShapeNet: the 13 benchmark ids, and not our procedural data (which uses the same ids)."""
-    from .baselines import oracle_available
+    from .data.procedural import is_procedural_dataset
 
     return bool(categories) and all(c in NMR_CATEGORY_IDS for c, _ in categories) and not (
-        hasattr(objects, "root") and oracle_available(objects))
+        hasattr(objects, "root") and is_procedural_dataset(objects.root))
 
 
 def add_baselines(result: EvaluationResult, datamodule, names: Sequence[str], model: ModelLike,

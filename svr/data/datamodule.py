@@ -38,8 +38,8 @@ from torch.utils.data.distributed import DistributedSampler
 
 from ..distributed import RankInfo, shard_indices
 from .nmr import NUM_VIEWS, SPLITS, NMRDataset, prepare_nmr, resolve_categories
-from .procedural import (DEFAULT_SHADING, ProceduralSettings, ensure_procedural_dataset, load_shading,
-                         procedural_dataset_dir)
+from .procedural import (DEFAULT_SHADING, ProceduralSettings, default_workers, ensure_procedural_dataset,
+                         load_shading, procedural_dataset_dir)
 from .types import ShadingModel, collate_batch
 
 PathLike = str | os.PathLike
@@ -407,7 +407,7 @@ class ProceduralDataModule(NMRDataModule):
                  generation_workers: Optional[int] = None):
         pl.LightningDataModule.__init__(self)
         if generation_workers is None:
-            generation_workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+            generation_workers = default_workers()
         if isinstance(generation_workers, bool) or not isinstance(generation_workers, int) or generation_workers < 0:
             raise ValueError(f"generation_workers must be an int >= 0 or null, got {generation_workers!r}")
         self.generation_workers = generation_workers

@@ -313,6 +313,21 @@ def read_settings(root: Union[str, os.PathLike]) -> ProceduralSettings:
         raise ValueError(f"{path}: not the metadata of a procedural dataset ({err})") from None
 
 
+def is_procedural_dataset(root: Union[str, os.PathLike]) -> bool:
+    """Whether ``root`` holds a generated procedural dataset (its metadata.json records the settings
+    that rebuild every object's analytic shape), as opposed to real NMR ShapeNet."""
+    try:
+        read_settings(root)
+    except ValueError:
+        return False
+    return True
+
+
+def default_workers() -> int:
+    """Generation processes when none are given: one per core this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def dataset_shape(root: Union[str, os.PathLike], category_id: str, split: str, index: int) -> CSGShape:
     """The exact (analytic) shape of object ``index`` of a category and split of a generated
     dataset, rebuilt from its recorded seed (for the oracle baseline, ``svr.baselines``)."""
@@ -543,5 +558,6 @@ __all__ = [
     "DEFAULT_SHADING", "GENERATOR_VERSION", "ALL_CATEGORIES", "NMR_PROCEDURAL_CATEGORIES", "EXTRA_CATEGORIES",
     "ProceduralCategory", "ProceduralSettings", "make_shape", "style_of", "object_seed", "procedural_category",
     "render_shape", "voxelize_shape", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
-    "procedural_dataset_dir", "load_shading", "read_settings", "dataset_shape",
+    "procedural_dataset_dir", "load_shading", "read_settings", "is_procedural_dataset", "dataset_shape",
+    "default_workers",
 ]
