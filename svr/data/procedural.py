@@ -357,9 +357,11 @@ class _Chunk:
 
 def _make_chunk(chunk: _Chunk, settings: ProceduralSettings, shading: ShadingModel) -> tuple[np.ndarray, np.ndarray]:
     """Renders and voxelises one chunk: ((n, 24, 4, 64, 64) uint8, (n, 32, 32, 32) bool)."""
+    from .nmr import IMAGE_SHAPE, VOXEL_SHAPE
+
     n = chunk.stop - chunk.start
-    images = np.zeros((n, NUM_VIEWS, 4, IMAGE_SIZE, IMAGE_SIZE), dtype=np.uint8)
-    voxels = np.zeros((n,) + (NMR_VOXEL_RESOLUTION,) * 3, dtype=bool)
+    images = np.zeros((n, *IMAGE_SHAPE), dtype=np.uint8)
+    voxels = np.zeros((n, *VOXEL_SHAPE), dtype=bool)
     for k, i in enumerate(range(chunk.start, chunk.stop)):
         shape = make_shape(chunk.name, object_seed(settings.seed, chunk.category_id, chunk.split, i))
         images[k] = render_shape(shape, shading, settings.supersample)
@@ -376,15 +378,14 @@ def _worker_init() -> None:
 def _open_arrays(folder: Path, settings: ProceduralSettings) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
     """The (images, voxels) .npy memory maps of every category and split in a partial folder,
     created on first use (their final names: they become the prepared arrays of ``prepare_nmr``)."""
-    from .nmr import nmr_file
+    from .nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
 
     arrays = {}
     for cid, _ in settings.category_pairs():
         for split in SPLITS:
             n = getattr(settings, split)
             pair = []
-            for kind, item, dtype in (("images", (NUM_VIEWS, 4, IMAGE_SIZE, IMAGE_SIZE), np.uint8),
-                                      ("voxels", (NMR_VOXEL_RESOLUTION,) * 3, np.bool_)):
+            for kind, item, dtype in (("images", IMAGE_SHAPE, np.uint8), ("voxels", VOXEL_SHAPE, np.bool_)):
                 path = nmr_file(folder, cid, split, kind, "npy")
                 mode = "r+" if path.exists() else "w+"
                 pair.append(np.lib.format.open_memmap(path, mode=mode, dtype=dtype, shape=(n, *item)))
@@ -439,25 +440,25 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
             "shading": dataclasses.asdict(shading),
         }
         plan = partial / "plan.json"
-        if partial.exists() and (not plan.exists() or json.loads(plan.read_text()) != meta):
-            shutil.rmtree(partial)  # another generator's or settings' leftovers
         done_dir = partial / "done"
-        done_dir.mkdir(parents=True, exist_ok=True)
-        if not plan.exists():
+
+        def start_afresh() -> None:
+            shutil.rmtree(partial, ignore_errors=True)
+            done_dir.mkdir(parents=True)
             write_json(plan, meta)
+
+        if not (plan.exists() and json.loads(plan.read_text()) == meta):
+            start_afresh()  # nothing yet, or another generator's or settings' leftovers
         _remove_stale_temporaries(partial)
+        try:
+            arrays = _open_arrays(partial, settings)
+        except (ValueError, OSError):  # an array file cut short while it was being created
+            start_afresh()
+            arrays = _open_arrays(partial, settings)
         chunks = [_Chunk(cid, name, split, a, min(a + CHUNK_OBJECTS, getattr(settings, split)))
                   for cid, name in settings.category_pairs() for split in SPLITS
                   for a in range(0, getattr(settings, split), CHUNK_OBJECTS)]
         todo = [c for c in chunks if not (done_dir / c.marker).exists()]
-        try:
-            arrays = _open_arrays(partial, settings)
-        except (ValueError, OSError):  # an array file cut short while it was being created: start over
-            shutil.rmtree(partial)
-            done_dir.mkdir(parents=True)
-            write_json(plan, meta)
-            todo = chunks
-            arrays = _open_arrays(partial, settings)
         total = sum(settings.sizes().values()) * len(settings.categories)
         bar = tqdm(total=total, initial=total - sum(c.stop - c.start for c in todo), unit="obj",
                    desc=f"procedural dataset -> {out.name}", disable=not progress)
