@@ -26,38 +26,40 @@ HALF_SIDE = 0.6        # configs/model/*.yaml: the SDF grid's box
 GRID_RESOLUTION = 64   # the paper's 64^3 output grid
 
 
+PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<name>.yaml
+
+
 def baseline_table(preset: str = "bench", split: str = "test", cache_dir: Optional[Path] = None,
-                   overrides: Optional[dict] = None, progress: bool = True) -> tuple[str, dict]:
+                   overrides: Sequence[str] = (), progress: bool = True) -> tuple[str, dict]:
     """Scores every baseline on every view of every object of a split.
 
     Args:
         preset: "demo" (data=procedural) or "bench" (data=procedural_bench).
-        overrides: dataset settings replacing the preset's (e.g. {"train": 2} for a toy run).
+        cache_dir: where the datasets are cached (default: the preset's, data/cache).
+        overrides: hydra overrides of the data group (e.g. ["data.train=2"] for a toy run).
     Returns:
         (markdown table, {baseline: {"categories": {name: iou}, "mean": iou}}).
     """
-    import importlib.util
+    from hydra import compose, initialize_config_dir
+    from hydra.utils import instantiate
 
     from svr.baselines import BASELINES, LABELS, score_baselines
-    from svr.data.nmr import NMRDataset
-    from svr.data.procedural import ProceduralSettings, default_workers, ensure_procedural_dataset
     from svr.evaluate import EvaluationResult
     from svr.metrics import iou_table
 
-    # The presets' settings, read from configs/data as the data script reads them (one reader).
-    spec = importlib.util.spec_from_file_location("make_procedural", ROOT / "data" / "make_procedural.py")
-    make_procedural = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(make_procedural)
-    values = {**make_procedural.preset_settings(preset), **(overrides or {})}
-    settings = ProceduralSettings(**{**values, "categories": tuple(values["categories"])})
-    root = ensure_procedural_dataset(cache_dir or ROOT / "data" / "cache", settings, progress=progress,
-                                     workers=default_workers())
-    objects, train = NMRDataset(root, split), NMRDataset(root, "train")
+    extra = [f"data.cache_dir={cache_dir}"] if cache_dir is not None else []
+    with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base="1.3"):
+        cfg = compose("eval", overrides=[f"data={PRESETS[preset]}", f"data.progress={progress}", *extra,
+                                         *overrides])
+    dm = instantiate(cfg.data)  # the data module training uses: the same folder, generated if missing
+    dm.prepare_data()
+    settings = dm.settings
+    objects, train = dm.dataset(split), dm.dataset("train")
     located = [objects.locate(g) for g in range(len(objects))]
     cat = np.repeat([c for c, _ in located], 24)
     obj = np.repeat([o for _, o in located], 24)
     view = np.tile(np.arange(24), len(located))
-    result = EvaluationResult(split=split, dataset=str(root), categories=tuple(objects.categories),
+    result = EvaluationResult(split=split, dataset=str(dm.root), categories=tuple(objects.categories),
                               is_nmr_shapenet=False, checkpoint=None, stage="-", output="-", category=cat,
                               object_index=obj, view=view, iou=np.zeros(len(cat)))
     scores = score_baselines(BASELINES, result, objects, train, HALF_SIDE, GRID_RESOLUTION, progress=progress)

@@ -24,25 +24,17 @@ sys.path.insert(0, str(REPO))
 from svr.data.procedural import (ALL_CATEGORIES, VOXEL_RULES, ProceduralSettings, default_workers,  # noqa: E402
                                  ensure_procedural_dataset, generate_procedural_dataset)
 
-PRESETS = {"demo": "procedural.yaml", "bench": "procedural_bench.yaml"}
+PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<name>.yaml
 
 
 def preset_settings(name: str) -> dict:
-    """The dataset settings of a data preset (configs/data/<file>, its defaults list followed)."""
-    from omegaconf import OmegaConf
+    """The dataset settings of a data preset, as hydra composes ``data=<preset>`` for training."""
+    from hydra import compose, initialize_config_dir
 
-    def load(file: str) -> dict:
-        cfg = OmegaConf.to_container(OmegaConf.load(REPO / "configs" / "data" / file))
-        merged: dict = {}
-        for parent in cfg.pop("defaults", []):
-            if parent != "_self_":
-                merged.update(load(f"{parent}.yaml"))
-        merged.update(cfg)
-        return merged
-
-    cfg = load(PRESETS[name])
-    return {"categories": cfg["categories"] or (), "train": cfg["train"], "val": cfg["val"], "test": cfg["test"],
-            "seed": cfg["data_seed"], "supersample": cfg["supersample"], "voxel_rule": cfg["voxel_rule"]}
+    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
+        cfg = compose("eval", overrides=[f"data={PRESETS[name]}"]).data
+    return {"categories": cfg.categories or (), "train": cfg.train, "val": cfg.val, "test": cfg.test,
+            "seed": cfg.data_seed, "supersample": cfg.supersample, "voxel_rule": cfg.voxel_rule}
 
 
 def folder_bytes(path: Path) -> int:

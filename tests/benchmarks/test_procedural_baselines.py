@@ -5,7 +5,8 @@ from benchmarks.procedural_baselines import baseline_table, main
 
 
 def test_toy_baseline_table(tmp_path):
-    toy = {"categories": ["chair", "lamp"], "train": 2, "val": 1, "test": 1, "supersample": 1}
+    toy = ["data.categories=[chair,lamp]", "data.train=2", "data.val=1", "data.test=1", "data.supersample=1",
+           "data.generation_workers=0"]
     table, summary = baseline_table("demo", "test", tmp_path / "cache", toy, progress=False)
     assert list(summary) == ["mean_shape", "category_mean_shape", "retrieval", "oracle"]
     assert "| chair | lamp | mean |" in table and "2 objects x 24 views = 48 images" in table
