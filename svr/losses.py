@@ -61,15 +61,15 @@ def narrow_band(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.
     return sdf.detach().abs() <= mu * voxel_size
 
 
-def _band_stencil(sdf: torch.Tensor, voxel_size: float,
-                  mu: float) -> tuple[Optional[dict[str, torch.Tensor]], float]:
-    """The 7-point stencils of the interior vertices in the band, gathered sparsely: the band holds
-    a few percent of a grid's vertices, so this costs far less than whole-grid differences.
+def _band_stencil(sdf: torch.Tensor, voxel_size: float, mu: float) -> tuple[Optional[torch.Tensor], float]:
+    """The 7-point stencils of the interior vertices in the band, gathered sparsely and in one
+    index operation: the band holds a few percent of a grid's vertices, so this costs far less than
+    whole-grid differences, and its backward is one scatter into one zero grid (seven separate
+    gathers cost seven full-grid zero fills and accumulations, more than rendering the batch).
 
     Returns:
-        (dict with ``c`` (K,) the centre values and ``xp, xm, yp, ym, zp, zm`` (K,) the neighbours
-        (``xp`` at i + 1, ``xm`` at i - 1, ...), or None when the band holds no interior vertex;
-        the checked voxel size).
+        ((K, 7) values: the centre, then the neighbours at i + 1, i - 1, j + 1, j - 1, k + 1, k - 1;
+        or None when the band holds no interior vertex, the checked voxel size).
     """
     _check_grid(sdf)
     h = _check_positive(voxel_size, "voxel_size")
@@ -79,14 +79,44 @@ def _band_stencil(sdf: torch.Tensor, voxel_size: float,
         return None, h
     sx, sy = ny * nz, nz
     base = ((idx[:, 0] * nx + idx[:, 1] + 1) * ny + idx[:, 2] + 1) * nz + idx[:, 3] + 1
-    flat = sdf.reshape(-1)
-    return {"c": flat[base], "xp": flat[base + sx], "xm": flat[base - sx], "yp": flat[base + sy],
-            "ym": flat[base - sy], "zp": flat[base + 1], "zm": flat[base - 1]}, h
+    offsets = torch.tensor([0, sx, -sx, sy, -sy, 1, -1], dtype=base.dtype, device=base.device)
+    return sdf.reshape(-1)[base[:, None] + offsets], h
 
 
 def _zero(sdf: torch.Tensor) -> torch.Tensor:
     """A zero still attached to the graph (backward runs and gives zero gradients)."""
     return sdf.reshape(-1)[:1].sum() * 0.0
+
+
+def _stencil_weights(st: torch.Tensor, h: float) -> torch.Tensor:
+    """(7, 4) weights turning a stencil row into (grad x, grad y, grad z, h * Laplacian): one
+    matrix product, whose backward is another (slicing the rows' columns instead costs a zero-filled
+    copy per slice in the backward)."""
+    w = torch.zeros(7, 4, dtype=st.dtype, device=st.device)
+    for axis in range(3):
+        w[1 + 2 * axis, axis] = 1.0 / (2 * h)
+        w[2 + 2 * axis, axis] = -1.0 / (2 * h)
+    w[1:, 3] = 1.0 / h
+    w[0, 3] = -6.0 / h
+    return w
+
+
+def _eikonal(d: torch.Tensor) -> torch.Tensor:
+    return ((1.0 - d[:, :3].square().sum(1)) ** 2).mean()
+
+
+def _laplacian(d: torch.Tensor) -> torch.Tensor:
+    return d[:, 3].square().mean()
+
+
+def band_regularisers(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(eikonal_loss, laplacian_loss)`` of the same grids from one band and one gather (what the
+    training loss uses; each alone below)."""
+    st, h = _band_stencil(sdf, voxel_size, mu)
+    if st is None:
+        return _zero(sdf), _zero(sdf)
+    d = st @ _stencil_weights(st, h)
+    return _eikonal(d), _laplacian(d)
 
 
 def eikonal_loss(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.Tensor:
@@ -99,12 +129,7 @@ def eikonal_loss(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch
         scalar tensor; 0 when no interior vertex lies in the band.
     """
     st, h = _band_stencil(sdf, voxel_size, mu)
-    if st is None:
-        return _zero(sdf)
-    gx = (st["xp"] - st["xm"]) / (2 * h)
-    gy = (st["yp"] - st["ym"]) / (2 * h)
-    gz = (st["zp"] - st["zm"]) / (2 * h)
-    return ((1.0 - (gx * gx + gy * gy + gz * gz)) ** 2).mean()
+    return _zero(sdf) if st is None else _eikonal(st @ _stencil_weights(st, h))
 
 
 def laplacian_loss(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.Tensor:
@@ -122,10 +147,7 @@ def laplacian_loss(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> tor
         scalar tensor; 0 when no interior vertex lies in the band.
     """
     st, h = _band_stencil(sdf, voxel_size, mu)
-    if st is None:
-        return _zero(sdf)
-    second = st["xp"] + st["xm"] + st["yp"] + st["ym"] + st["zp"] + st["zm"] - 6.0 * st["c"]
-    return ((second / h) ** 2).mean()
+    return _zero(sdf) if st is None else _laplacian(st @ _stencil_weights(st, h))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -343,8 +365,7 @@ def total_loss(image: ImageLoss, sdf: torch.Tensor, voxel_size: float, weights: 
     Returns:
         LossTerms.
     """
-    eik = eikonal_loss(sdf, voxel_size, weights.band_mu)
-    lap = laplacian_loss(sdf, voxel_size, weights.band_mu)
+    eik, lap = band_regularisers(sdf, voxel_size, weights.band_mu)
     total = weights.silhouette * image.silhouette + weights.eikonal * eik + weights.laplacian * lap
     if image.shading is not None:
         total = total + weights.shading * image.shading
@@ -352,6 +373,6 @@ def total_loss(image: ImageLoss, sdf: torch.Tensor, voxel_size: float, weights: 
 
 
 __all__ = [
-    "narrow_band", "eikonal_loss", "laplacian_loss", "silhouette_loss", "shading_loss", "resize_images",
+    "narrow_band", "band_regularisers", "eikonal_loss", "laplacian_loss", "silhouette_loss", "shading_loss", "resize_images",
     "render_views", "image_loss", "ImageLoss", "LossWeights", "LossTerms", "total_loss", "SILHOUETTE_KINDS",
 ]
