@@ -2,6 +2,6 @@
 from .decoder import SDFDecoder, sphere_template
 from .encoder import ImageEncoder
 from .network import SVRNet, SVRPrediction
-from .refiner import SDFRefiner
+from .refiner import BlockRefiner, SDFRefiner
 
-__all__ = ["ImageEncoder", "SDFDecoder", "SDFRefiner", "SVRNet", "SVRPrediction", "sphere_template"]
+__all__ = ["BlockRefiner", "ImageEncoder", "SDFDecoder", "SDFRefiner", "SVRNet", "SVRPrediction", "sphere_template"]

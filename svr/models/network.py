@@ -10,7 +10,7 @@ import renderer
 
 from .decoder import SDFDecoder
 from .encoder import ImageEncoder
-from .refiner import SDFRefiner
+from .refiner import BlockRefiner, SDFRefiner
 
 
 @dataclass(frozen=True)
@@ -37,16 +37,16 @@ class SVRNet(nn.Module):
     Args:
         encoder: image (B, 4, 64, 64) -> code (B, latent_dim).
         decoder: code -> coarse SDF (B, N, N, N).
-        refiner: coarse SDF -> refined SDF (B, N, N, N).
+        refiner: coarse SDF -> refined SDF (B, N, N, N) (BlockRefiner or SDFRefiner).
         half_side: the SDF grid covers ``[-half_side, half_side]^3`` (world units); the normalised
             objects lie in [-0.5, 0.5]^3, so a value above 0.5 leaves a margin.
     """
 
-    def __init__(self, encoder: ImageEncoder, decoder: SDFDecoder, refiner: SDFRefiner,
+    def __init__(self, encoder: ImageEncoder, decoder: SDFDecoder, refiner: BlockRefiner | SDFRefiner,
                  half_side: float = 0.6) -> None:
         super().__init__()
         for name, mod, cls in (("encoder", encoder, ImageEncoder), ("decoder", decoder, SDFDecoder),
-                               ("refiner", refiner, SDFRefiner)):
+                               ("refiner", refiner, BlockRefiner)):
             if not isinstance(mod, nn.Module):
                 raise TypeError(f"{name} must be an nn.Module ({cls.__name__}), got {type(mod).__name__}")
         if not float(half_side) > 0:

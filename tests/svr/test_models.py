@@ -11,8 +11,9 @@ from hydra.utils import instantiate
 
 import renderer
 from svr.data.types import SVRBatch
-from svr.models import ImageEncoder, SDFDecoder, SDFRefiner, SVRNet, sphere_template
-from svr.models.decoder import linear_upsample_matrix, upsample_grid
+from svr.models import BlockRefiner, ImageEncoder, SDFDecoder, SDFRefiner, SVRNet, sphere_template
+from svr.models.decoder import linear_upsample_matrix, upsample2_centres, upsample_grid
+from svr.models.refiner import fold_blocks, unfold_blocks
 from svr.models.module import SVRLightningModule, load_checkpoint, load_network
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
@@ -71,6 +72,63 @@ def test_upsampling_matches_trilinear_interpolation():
     fast = upsample_grid(x, linear_upsample_matrix(5, 9))
     ref = torch.nn.functional.interpolate(x[:, None], size=(9, 9, 9), mode="trilinear", align_corners=True)[:, 0]
     assert torch.allclose(fast, ref, atol=1e-6)
+
+
+def test_cell_centred_upsampling_matches_trilinear_interpolation():
+    x = torch.randn(2, 5, 5, 5, requires_grad=True)
+    fast = upsample2_centres(x)
+    ref = torch.nn.functional.interpolate(x[:, None], scale_factor=2, mode="trilinear", align_corners=False)[:, 0]
+    assert fast.shape == (2, 10, 10, 10) and torch.allclose(fast, ref, atol=1e-6)
+    g = torch.randn_like(fast)
+    assert torch.allclose(torch.autograd.grad(fast, x, g)[0], torch.autograd.grad(ref, x, g)[0], atol=1e-5)
+    small = torch.randn(1, 3, 3, 3, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(upsample2_centres, (small,))
+
+
+def test_decoder_head_stride_and_upsampling():
+    torch.manual_seed(0)
+    dec = SDFDecoder(latent_dim=8, base_resolution=2, channels=(8, 4), grid_resolution=16, head_stride=2,
+                     upsampling="centres")
+    assert isinstance(dec.head, torch.nn.ConvTranspose3d)
+    out = dec(torch.randn(3, 8))
+    assert out.shape == (3, 16, 16, 16) and out.abs().max() < dec.output_bound
+    with pytest.raises(ValueError, match="head_stride"):
+        SDFDecoder(head_stride=3)
+    with pytest.raises(ValueError, match="upsampling"):
+        SDFDecoder(upsampling="nearest")
+    with pytest.raises(ValueError, match="power of two"):
+        SDFDecoder(base_resolution=3, channels=(8, 4), grid_resolution=36, head_stride=2, upsampling="centres")
+
+
+def test_block_folding_is_space_to_depth_and_invertible():
+    grid = torch.arange(2 * 6 ** 3, dtype=torch.float32).reshape(2, 6, 6, 6)
+    blocks = fold_blocks(grid)
+    assert blocks.shape == (2, 8, 3, 3, 3)
+    # voxel (2i+a, 2j+c, 2k+e) -> channel 4a + 2c + e at site (i, j, k)
+    assert blocks[1, 4 * 1 + 2 * 0 + 1, 2, 0, 1] == grid[1, 5, 0, 3]
+    assert torch.equal(unfold_blocks(blocks), grid)
+    with pytest.raises(ValueError, match="even"):
+        fold_blocks(torch.zeros(1, 5, 5, 5))
+    with pytest.raises(ValueError, match="blocks"):
+        unfold_blocks(torch.zeros(1, 4, 3, 3, 3))
+
+
+def test_block_refiner_adds_a_bounded_residual_and_learns():
+    torch.manual_seed(0)
+    ref = BlockRefiner(channels=(4, 8), grid_resolution=16, residual_bound=0.05)
+    x = torch.randn(2, 16, 16, 16) * 0.3
+    assert torch.equal(ref(x), x)  # the zero head: identity before training
+    torch.nn.init.normal_(ref.head.weight, std=1.0)
+    y = ref(x)
+    residual = y - x
+    assert 0 < residual.abs().max() <= 0.05 + 1e-6
+    # Every weight gets a gradient, and so does the input (the joint stage trains through it).
+    x.requires_grad_(True)
+    (ref(x) ** 2).sum().backward()
+    assert all(p.grad is not None and p.grad.abs().sum() > 0 for p in ref.parameters())
+    assert x.grad is not None and x.grad.abs().sum() > 0
+    with pytest.raises(ValueError, match="grid_resolution"):
+        BlockRefiner(channels=(4, 8, 8), grid_resolution=20)
 
 
 def test_paper_config_has_the_authors_size_and_small_trains_on_cpu():
