@@ -38,6 +38,7 @@ from mvr.outputs import write_text
 
 from .callbacks import AtomicCheckpointIO
 from .distributed import launch_rank_is_zero
+from .host_memory import keep_freed_memory
 from .losses import LossWeights
 from .models.module import (CHECKPOINT_KEY, STAGES, SVRLightningModule, check_stage, load_checkpoint,
                             load_network_weights)
@@ -223,6 +224,7 @@ def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
+    keep_freed_memory()  # a step's 64^3 grids reuse pages instead of faulting them in again
     if launch_rank_is_zero():  # the other DDP processes run this too, in the same folder
         write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
 
