@@ -21,6 +21,7 @@ ranks' shares to equal sizes), so ``val/iou`` is the single-process number on ev
 """
 from __future__ import annotations
 
+import time
 import warnings
 from typing import Any, Callable, Iterable, Optional, Sequence
 
@@ -109,6 +110,8 @@ class SVRLightningModule(pl.LightningModule):
         self.categories = [tuple(c) for c in categories] if categories is not None else None
         self.model_config = model_config
         self.skipped_steps = 0
+        self.seconds_before = 0.0  # wall seconds this stage trained before a resume (from the checkpoint)
+        self._fit_started: Optional[float] = None
         self._skip_this_step = False
         self.capture_visuals = False
         self.visuals: Optional[dict[str, torch.Tensor]] = None
@@ -247,6 +250,15 @@ class SVRLightningModule(pl.LightningModule):
             return opt
         return {"optimizer": opt, "lr_scheduler": {"scheduler": self.scheduler_factory(opt), "interval": "step"}}
 
+    def on_train_start(self) -> None:
+        self._fit_started = time.perf_counter()
+
+    @property
+    def train_seconds(self) -> float:
+        """Wall seconds this stage has trained (validation included), over resumes."""
+        now = time.perf_counter() - self._fit_started if self._fit_started is not None else 0.0
+        return self.seconds_before + now
+
     # ------------------------------------------------------------------ validation
     def on_validation_epoch_start(self) -> None:
         self._val_iou, self._val_iou_coarse, self._val_category, self._val_key = [], [], [], []
@@ -283,6 +295,7 @@ class SVRLightningModule(pl.LightningModule):
         mean, per_cat = _category_mean(iou, cat, self.categories)
         self.log("val/iou", mean, prog_bar=True, sync_dist=False)
         self.log("val/images", float(len(iou)), sync_dist=False)  # what the means are over
+        self.log("val/train_seconds", self.train_seconds, sync_dist=False)  # for IoU-against-time curves
         self.log("val/iou_coarse", _category_mean(iou_c, cat, self.categories)[0], sync_dist=False)
         for name, value in per_cat.items():
             self.log(f"val/iou_{name}", value, sync_dist=False)
@@ -292,6 +305,7 @@ class SVRLightningModule(pl.LightningModule):
         checkpoint[CHECKPOINT_KEY] = {
             "stage": self.stage,
             "skipped_steps": self.skipped_steps,
+            "train_seconds": self.train_seconds,
             "model_config": self.model_config,
             "half_side": self.net.half_side,
             "grid_resolution": self.net.grid_resolution,
@@ -301,6 +315,7 @@ class SVRLightningModule(pl.LightningModule):
     def on_load_checkpoint(self, checkpoint: dict[str, Any]) -> None:
         meta = checkpoint.get(CHECKPOINT_KEY, {})
         self.skipped_steps = int(meta.get("skipped_steps", 0))
+        self.seconds_before = float(meta.get("train_seconds", 0.0))
 
 
 def _category_mean(iou: torch.Tensor, cat: torch.Tensor,

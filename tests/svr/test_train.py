@@ -85,11 +85,14 @@ def test_schedule_checkpoints_resume_and_frozen_weights(tmp_path, data_overrides
             assert (ckpts / name).is_file(), f"{s.stage}/{name} missing"
         assert s.best == ckpts / "best.ckpt" and s.best_val_iou is not None
         assert {"train/total", "train/silhouette", "train/eikonal", "train/laplacian", "train/skipped_steps",
-                "val/iou", "val/iou_coarse"} <= metrics_columns(run / s.stage)
+                "val/iou", "val/iou_coarse", "val/train_seconds"} <= metrics_columns(run / s.stage)
         assert list((run / s.stage / "tensorboard").glob("events.out.tfevents*"))
         assert list((run / s.stage / "images").glob("step_*.png"))
         assert not list(ckpts.glob("*.tmp"))
     assert load_checkpoint(run / "coarse" / "checkpoints" / "final.ckpt")["global_step"] == 4  # resumed 2 -> 4
+    # The stage's training time carries over the resume (the first part's seconds are included).
+    first_part = load_checkpoint(last)["sdfdiff"]["train_seconds"]
+    assert 0 < first_part < load_checkpoint(run / "coarse" / "checkpoints" / "final.ckpt")["sdfdiff"]["train_seconds"]
 
     # The coarse stage never trains the refiner (its head is still the zero initialisation).
     coarse_final = state(run / "coarse" / "checkpoints" / "final.ckpt", "net.refiner.head")
@@ -217,6 +220,14 @@ def test_experiment_configs_compose():
     demo = compose_train(["experiment=demo"])
     assert demo.data._target_.endswith("ProceduralDataModule")
     assert list(demo.stage.schedule) == ["coarse", "refine", "joint"]
+    bench = compose_train(["experiment=bench"])
+    assert bench.data.train == 400 and bench.stage.coarse.scheduler.total_steps == bench.stage.coarse.max_steps
+    for name in ("demo", "bench"):  # the demo and the bench schedules build (schedulers included)
+        cfg = compose_train([f"experiment={name}"])
+        opt = torch.optim.Adam([torch.nn.Parameter(torch.zeros(1))], lr=1.0)
+        for stage in ("coarse", "refine", "joint"):
+            sched = instantiate(cfg.stage[stage].scheduler)(opt)
+            assert sched.get_last_lr()[0] < 1.0  # the warm-up starts below the stage's rate
     paper = compose_train(["experiment=paper_nmr"])
     assert paper.data._target_.endswith("NMRDataModule")
     assert paper.model.encoder.latent_dim == 512  # model=paper

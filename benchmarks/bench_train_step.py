@@ -1,0 +1,372 @@
+"""One single-view training step, phase by phase: where the time and the memory of a step go.
+
+    python benchmarks/bench_train_step.py                          # experiment=demo, writes docs/bench_train_step.md
+    python benchmarks/bench_train_step.py model=paper data.batch_size=8 --no-write
+    python benchmarks/bench_train_step.py --device cuda            # on a GPU: docs/bench_train_step_cuda.md
+    python benchmarks/bench_train_step.py --baseline ../old-checkout   # before/after, same run
+
+Positional arguments are hydra overrides of ``configs/train.yaml`` (default ``experiment=demo``).
+The data module, network and loss are built from that config exactly as ``train.py`` builds them,
+and one training batch of it is used throughout (the procedural data is generated first if needed).
+
+Phases (each timed alone, median over ``--repeats`` after one warm-up; CUDA calls are synchronised):
+
+- data: one batch from the training data loader (its worker processes included, as training sees it);
+- encoder / decoder / refiner: forward + backward of that module alone (weights' gradients; the
+  refiner's input is the decoder's output, detached, as in the refine stage);
+- render: the image loss (sphere tracing, differentiable shading, silhouette and colour terms)
+  forward + backward into the grid values;
+- regularisers: the narrow-band eikonal + Laplacian terms forward + backward into the grid values;
+- optimiser: one step of the stage optimiser over the joint stage's parameters;
+- step <stage>: a whole training step of each stage as the LightningModule runs it (forward,
+  loss, backward, optimiser step) on the same batch; images/s = batch size / step time.
+
+Memory: on CUDA the peak allocated memory of each phase (``torch.cuda.max_memory_allocated``);
+on the CPU the peak extra resident memory of one call (``VmHWM`` after resetting it through
+``/proc/self/clear_refs``; "n/a" where that is not available).
+
+``--baseline PATH`` runs the same measurements with the code and configs of another checkout (e.g. a
+``git worktree`` of main before a change) in alternating subprocesses (``--rounds`` each) and
+reports both and their ratio: a speed claim against a baseline measured in the same run.
+"""
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Callable, Optional
+
+HERE = Path(__file__).resolve()
+ROOT = HERE.parents[1]
+
+PHASES = ("data", "encoder", "decoder", "refiner", "render", "regularisers", "optimiser")
+STAGE_STEPS = ("step coarse", "step refine", "step joint")
+
+
+def _code_root(argv: list[str]) -> Path:
+    """``--code PATH`` (the checkout whose svr/renderer/configs are measured) before importing them."""
+    if "--code" in argv:
+        return Path(argv[argv.index("--code") + 1]).resolve()
+    return ROOT
+
+
+# ---------------------------------------------------------------------------- measuring (one process)
+def _status_kib(field: str) -> Optional[int]:
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def _reset_peak_rss() -> Optional[int]:
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        return None
+    return _status_kib("VmRSS")
+
+
+def _sync(device) -> None:
+    import torch
+
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+def measure_time(fn: Callable[[], None], repeats: int, device) -> float:
+    """Median wall ms of ``fn`` over ``repeats`` calls after one warm-up call."""
+    fn()
+    _sync(device)
+    times = []
+    for _ in range(repeats):
+        _sync(device)
+        t0 = time.perf_counter()
+        fn()
+        _sync(device)
+        times.append((time.perf_counter() - t0) * 1e3)
+    return statistics.median(times)
+
+
+def measure_memory(fn: Callable[[], None], device) -> float:
+    """Peak extra memory (MiB) of one call of ``fn`` after a warm-up call: CUDA's peak allocated
+    memory, or on the CPU the peak resident set (VmHWM reset through /proc/self/clear_refs; NaN
+    where that is not available). Meaningful on the CPU only while freed memory goes back to the
+    system (glibc's defaults): measured before ``keep_freed_memory``."""
+    import torch
+
+    fn()
+    _sync(device)
+    gc.collect()
+    if device.type == "cuda":
+        torch.cuda.reset_peak_memory_stats(device)
+        before = torch.cuda.memory_allocated(device)
+        fn()
+        _sync(device)
+        return (torch.cuda.max_memory_allocated(device) - before) / 2**20
+    before = _reset_peak_rss()
+    if before is None:
+        return float("nan")
+    fn()
+    after = _status_kib("VmHWM")
+    return float("nan") if after is None else (after - before) / 1024.0
+
+
+def run_phases(overrides: list[str], device_name: str, repeats: int, stages: bool = True) -> dict:
+    """Every phase of ``PHASES`` (and the stages' whole steps) for the composed config, in this process."""
+    import torch
+    from hydra import compose, initialize_config_dir
+    from hydra.utils import instantiate
+
+    from svr import losses
+    from svr.training import build_module
+
+    device = torch.device(device_name)
+    with initialize_config_dir(config_dir=str(Path(sys.modules["svr"].__file__).resolve().parents[1] / "configs"),
+                               version_base=None):
+        cfg = compose(config_name="train", overrides=list(overrides))
+    torch.manual_seed(int(cfg.seed))
+    dm = instantiate(cfg.data)
+    dm.prepare_data()
+    dm.setup("fit")
+    loader = dm.train_dataloader()
+    it = iter(loader)
+    batch = next(it).to(device)
+    net = instantiate(cfg.model).to(device)
+    module = build_module(cfg, net, "joint", dm).to(device)
+    module.train()
+    images = batch.images[:, 0]
+    hs, h = net.half_side, net.voxel_size
+    w = module.loss_weights
+    with torch.no_grad():
+        latent0 = net.encoder(images)
+        coarse0 = net.decoder(latent0)
+    g_latent = torch.randn_like(latent0)
+    g_grid = torch.randn_like(coarse0) * 1e-3
+
+    def data() -> None:
+        nonlocal it
+        try:
+            next(it)
+        except StopIteration:
+            it = iter(loader)
+            next(it)
+
+    def encoder() -> None:
+        net.zero_grad(set_to_none=True)
+        (net.encoder(images) * g_latent).sum().backward()
+
+    def decoder() -> None:
+        net.zero_grad(set_to_none=True)
+        (net.decoder(latent0) * g_grid).sum().backward()
+
+    def refiner() -> None:
+        net.zero_grad(set_to_none=True)
+        (net.refiner(coarse0) * g_grid).sum().backward()
+
+    def render() -> None:
+        sdf = coarse0.clone().requires_grad_(True)
+        img = losses.image_loss(sdf, hs, batch.images, batch.view_ids, module.scene, module.render_size,
+                                w.silhouette_kind, module.trace_settings, module.backend)
+        total = w.silhouette * img.silhouette + (w.shading * img.shading if img.shading is not None else 0.0)
+        total.backward()
+
+    def regularisers() -> None:
+        sdf = coarse0.clone().requires_grad_(True)
+        (w.eikonal * losses.eikonal_loss(sdf, h, w.band_mu)
+         + w.laplacian * losses.laplacian_loss(sdf, h, w.band_mu)).backward()
+
+    params = [p for p in net.parameters()]
+    for p in params:
+        p.grad = torch.zeros_like(p)
+    opt = module.optimizer_factory(params)
+
+    def optimiser() -> None:
+        opt.step()
+
+    fns = dict(data=data, encoder=encoder, decoder=decoder, refiner=refiner, render=render,
+               regularisers=regularisers, optimiser=optimiser)
+    if stages:
+        for stage in ("coarse", "refine", "joint"):
+            mod = build_module(cfg, net, stage, dm).to(device)
+            mod.train()
+            stage_opt = mod.optimizer_factory([p for p in mod.parameters() if p.requires_grad])
+
+            def step(mod=mod, stage_opt=stage_opt) -> None:
+                stage_opt.zero_grad(set_to_none=True)
+                mod.training_step(batch, 0).backward()
+                stage_opt.step()
+
+            fns[f"step {stage}"] = step
+    results: dict[str, dict[str, float]] = {name: {"peak_mib": measure_memory(fn, device)} for name, fn in fns.items()}
+    try:  # what svr.training.train does first, where the checkout has it
+        from svr.host_memory import keep_freed_memory
+    except ImportError:
+        allocator = "glibc defaults"
+    else:
+        allocator = "keep_freed_memory" if keep_freed_memory() else "glibc defaults"
+    for name, fn in fns.items():
+        results[name]["ms"] = measure_time(fn, repeats, device)
+        if name.startswith("step "):
+            results[name]["images_per_s"] = len(batch) / (results[name]["ms"] / 1e3)
+    n_params = {k: sum(p.numel() for p in getattr(net, k).parameters()) for k in ("encoder", "decoder", "refiner")}
+    return {"phases": results, "batch": len(batch), "views": int(batch.images.shape[1]),
+            "render_size": module.render_size, "grid": net.grid_resolution, "params": n_params,
+            "torch_threads": torch.get_num_threads(), "allocator": allocator,
+            "device": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"}
+
+
+# ---------------------------------------------------------------------------- report
+def _ms(r: dict) -> str:
+    return f"{r['ms']:.1f}"
+
+
+def _mib(r: dict) -> str:
+    v = r.get("peak_mib", float("nan"))
+    return "n/a" if v != v else f"{v:.0f}"
+
+
+def table(res: dict) -> str:
+    lines = ["| phase | ms (median) | peak MiB | images/s |", "|---|---:|---:|---:|"]
+    for name in PHASES + tuple(s for s in STAGE_STEPS if s in res["phases"]):
+        r = res["phases"][name]
+        ips = f"{r['images_per_s']:.1f}" if "images_per_s" in r else ""
+        lines.append(f"| {name} | {_ms(r)} | {_mib(r)} | {ips} |")
+    return "\n".join(lines)
+
+
+def compare_table(before: dict, after: dict) -> str:
+    lines = ["| phase | before ms | after ms | speed-up | before MiB | after MiB |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for name in PHASES + STAGE_STEPS:
+        b, a = before["phases"].get(name), after["phases"].get(name)
+        if b is None or a is None:
+            continue
+        lines.append(f"| {name} | {_ms(b)} | {_ms(a)} | {b['ms'] / a['ms']:.2f}x | {_mib(b)} | {_mib(a)} |")
+    return "\n".join(lines)
+
+
+def _setup_line(res: dict) -> str:
+    p = res["params"]
+    return (f"batch {res['batch']}, {res['views']} views, renders {res['render_size']}^2, grid {res['grid']}^3, "
+            f"parameters: encoder {p['encoder']:,}, decoder {p['decoder']:,}, refiner {p['refiner']:,}; "
+            f"torch threads {res['torch_threads']}, device {res['device']}, host allocator: "
+            f"{res.get('allocator', 'glibc defaults')}")
+
+
+def _merge(runs: list[dict]) -> dict:
+    """Per phase, the median over the rounds' medians (memory: the median too)."""
+    out = dict(runs[0])
+    out["phases"] = {}
+    for name in runs[0]["phases"]:
+        rows = [r["phases"][name] for r in runs]
+        merged = {k: statistics.median([row[k] for row in rows]) for k in rows[0]}
+        out["phases"][name] = merged
+    return out
+
+
+def _subprocess(code: Path, overrides: list[str], args) -> dict:
+    cmd = [sys.executable, str(HERE), "--code", str(code), "--json", "--device", args.device,
+           "--repeats", str(args.repeats), *overrides]
+    env = dict(os.environ, PYTHONPATH=str(code))
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=code, env=env)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("overrides", nargs="*", help="hydra overrides of configs/train.yaml (default: experiment=demo)")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    parser.add_argument("--repeats", type=int, default=5, help="timed calls per phase (default 5)")
+    parser.add_argument("--rounds", type=int, default=2, help="with --baseline: alternating runs of each checkout")
+    parser.add_argument("--baseline", type=Path, default=None, help="another checkout to measure in the same run")
+    parser.add_argument("--out", type=Path, default=None, help="report path (default docs/bench_train_step[_cuda].md)")
+    parser.add_argument("--no-write", action="store_true", help="print only")
+    parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
+    if args.rounds < 1:
+        parser.error(f"--rounds must be >= 1, got {args.rounds}")
+    overrides = args.overrides or ["experiment=demo"]
+    if args.device == "cuda":
+        import torch
+
+        if not torch.cuda.is_available():
+            parser.error("--device cuda: no CUDA device is visible to torch")
+    if args.json:
+        print(json.dumps(run_phases(overrides, args.device, args.repeats)))
+        return
+    if args.baseline is not None:
+        base = args.baseline.resolve()
+        if not (base / "svr").is_dir() or not (base / "configs" / "train.yaml").is_file():
+            parser.error(f"--baseline {base}: not a checkout of this project (no svr/ and configs/train.yaml)")
+        before_runs, after_runs = [], []
+        for r in range(args.rounds):
+            print(f"round {r + 1}/{args.rounds}: baseline {base}", file=sys.stderr, flush=True)
+            before_runs.append(_subprocess(base, overrides, args))
+            print(f"round {r + 1}/{args.rounds}: this checkout", file=sys.stderr, flush=True)
+            after_runs.append(_subprocess(ROOT, overrides, args))
+        before, after = _merge(before_runs), _merge(after_runs)
+        body = (f"Before: `{base}` ({_git_rev(base)}); {_setup_line(before)}.\n\n"
+                f"After: this checkout ({_git_rev(ROOT)}); {_setup_line(after)}.\n\n"
+                f"{compare_table(before, after)}\n")
+    else:
+        res = _subprocess(ROOT, overrides, args) if args.code is None else run_phases(overrides, args.device,
+                                                                                      args.repeats)
+        body = f"{_setup_line(res)}.\n\n{table(res)}\n"
+    command = "python benchmarks/bench_train_step.py " + " ".join(argv)
+    text = (f"# Single-view training step, phase by phase\n\n`{command.strip()}` "
+            f"(config overrides: `{' '.join(overrides)}`; medians of {args.repeats} calls"
+            + (f", median over {args.rounds} alternating rounds per checkout" if args.baseline else "")
+            + f"; written {time.strftime('%Y-%m-%d %H:%M')}).\n\n{body}\n{_machine()}\n")
+    print(text)
+    if not args.no_write:
+        out = args.out or ROOT / "docs" / ("bench_train_step_cuda.md" if args.device == "cuda" else "bench_train_step.md")
+        sys.path.insert(0, str(ROOT))
+        from benchmarks.report import atomic_write_text
+
+        atomic_write_text(out, text)
+        print(f"wrote {out}", file=sys.stderr)
+
+
+def _git_rev(path: Path) -> str:
+    try:
+        return subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], check=True,
+                              capture_output=True, text=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "not a git checkout"
+
+
+def _machine() -> str:
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.report import machine_info
+
+    return machine_info()
+
+
+def _use_only(code: Path) -> None:
+    """Imports svr, renderer and mvr from ``code`` alone: ahead on sys.path, and without the
+    editable install's import hook, which would otherwise supply modules that checkout lacks
+    from this one."""
+    sys.path.insert(0, str(code))
+    if code != ROOT:
+        sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__module__.lower()
+                            and "editable" not in getattr(f, "__name__", "").lower()]
+
+
+if __name__ == "__main__":
+    _use_only(_code_root(sys.argv[1:]))
+    main()
