@@ -61,6 +61,18 @@ def narrow_band(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.
     return sdf.detach().abs() <= mu * voxel_size
 
 
+def _band_vertices(sdf: torch.Tensor, voxel_size: float, mu: float) -> tuple[Optional[torch.Tensor], float]:
+    """Flat indices (K,) into ``sdf.reshape(-1)`` of the interior vertices in the band (None when
+    there is none), and the checked voxel size."""
+    _check_grid(sdf)
+    h = _check_positive(voxel_size, "voxel_size")
+    b, nx, ny, nz = sdf.shape
+    idx = narrow_band(sdf[:, 1:-1, 1:-1, 1:-1], h, mu).nonzero()
+    if idx.shape[0] == 0:
+        return None, h
+    return ((idx[:, 0] * nx + idx[:, 1] + 1) * ny + idx[:, 2] + 1) * nz + idx[:, 3] + 1, h
+
+
 def _band_stencil(sdf: torch.Tensor, voxel_size: float, mu: float) -> tuple[Optional[torch.Tensor], float]:
     """The 7-point stencils of the interior vertices in the band, gathered sparsely and in one
     index operation: the band holds a few percent of a grid's vertices, so this costs far less than
@@ -71,15 +83,11 @@ def _band_stencil(sdf: torch.Tensor, voxel_size: float, mu: float) -> tuple[Opti
         ((K, 7) values: the centre, then the neighbours at i + 1, i - 1, j + 1, j - 1, k + 1, k - 1;
         or None when the band holds no interior vertex, the checked voxel size).
     """
-    _check_grid(sdf)
-    h = _check_positive(voxel_size, "voxel_size")
-    b, nx, ny, nz = sdf.shape
-    idx = narrow_band(sdf[:, 1:-1, 1:-1, 1:-1], h, mu).nonzero()
-    if idx.shape[0] == 0:
+    base, h = _band_vertices(sdf, voxel_size, mu)
+    if base is None:
         return None, h
-    sx, sy = ny * nz, nz
-    base = ((idx[:, 0] * nx + idx[:, 1] + 1) * ny + idx[:, 2] + 1) * nz + idx[:, 3] + 1
-    offsets = torch.tensor([0, sx, -sx, sy, -sy, 1, -1], dtype=base.dtype, device=base.device)
+    ny, nz = sdf.shape[2], sdf.shape[3]
+    offsets = torch.tensor([0, ny * nz, -ny * nz, nz, -nz, 1, -1], dtype=base.dtype, device=base.device)
     return sdf.reshape(-1)[base[:, None] + offsets], h
 
 
@@ -109,9 +117,20 @@ def _laplacian(d: torch.Tensor) -> torch.Tensor:
     return d[:, 3].square().mean()
 
 
-def band_regularisers(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(eikonal_loss, laplacian_loss)`` of the same grids from one band and one gather (what the
-    training loss uses; each alone below)."""
+def band_regularisers(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6,
+                      fused: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(eikonal_loss, laplacian_loss)`` of the same grids from one band (what the training loss
+    uses; each alone below). On the CPU with ``fused`` (and numba present) both terms and their
+    backward run as one operation (``svr.band_kernel``, 2-3x faster forward + backward); otherwise,
+    and as the specification it is tested against, one gather of the stencils and a matrix product."""
+    if fused and sdf.device.type == "cpu" and sdf.dtype in (torch.float32, torch.float64):
+        from . import band_kernel
+
+        if band_kernel.available():
+            base, h = _band_vertices(sdf, voxel_size, mu)
+            if base is None:
+                return _zero(sdf), _zero(sdf)
+            return band_kernel.BandRegularisers.apply(sdf.contiguous(), base, h)
     st, h = _band_stencil(sdf, voxel_size, mu)
     if st is None:
         return _zero(sdf), _zero(sdf)

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 import renderer
-from svr.losses import (LossWeights, eikonal_loss, image_loss, laplacian_loss, narrow_band, render_views,
-                        resize_images, silhouette_loss, shading_loss, total_loss)
+from svr.losses import (LossWeights, band_regularisers, eikonal_loss, image_loss, laplacian_loss, narrow_band,
+                        render_views, resize_images, silhouette_loss, shading_loss, total_loss)
 
 
 def ramp_grid(values_along_x, ny: int = 3, nz: int = 3, dtype=torch.float64) -> torch.Tensor:
@@ -216,3 +216,33 @@ def test_bad_input_names_the_argument():
         LossWeights(eikonal=-0.1)
     with pytest.raises(ValueError, match="silhouette_kind"):
         LossWeights(silhouette_kind="l1")
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_fused_band_regularisers_match_the_torch_specification(dtype):
+    from svr import band_kernel
+
+    if not band_kernel.available():
+        pytest.skip("numba is not installed")
+    torch.manual_seed(0)
+    n, h = 14, 0.1
+    axis = torch.linspace(-0.65, 0.65, n)
+    pts = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1)
+    sdf = (pts.norm(dim=-1) - 0.4 + 0.02 * torch.randn(2, n, n, n)).to(dtype).requires_grad_(True)
+    spec = band_regularisers(sdf, h, 1.6, fused=False)
+    fused = band_regularisers(sdf, h, 1.6, fused=True)
+    tol = dict(rtol=1e-5, atol=1e-6) if dtype == torch.float32 else dict(rtol=1e-10, atol=1e-12)
+    for a, b in zip(spec, fused):
+        torch.testing.assert_close(a, b, **tol)
+    g_spec = torch.autograd.grad(0.3 * spec[0] + 0.7 * spec[1], sdf)[0]
+    g_fused = torch.autograd.grad(0.3 * fused[0] + 0.7 * fused[1], sdf)[0]
+    torch.testing.assert_close(g_spec, g_fused, **tol)
+    assert g_fused.abs().max() > 0
+    if dtype == torch.float64:
+        small = sdf.detach()[:1, :6, :6, :6].clone().requires_grad_(True)
+        assert torch.autograd.gradcheck(lambda s: band_regularisers(s, h, 10.0, fused=True), (small,))
+    # No vertex in the band: zeros that still backpropagate.
+    far = torch.full((1, 5, 5, 5), 3.0, dtype=dtype, requires_grad=True)
+    eik, lap = band_regularisers(far, h, 1.6, fused=True)
+    (eik + lap).backward()
+    assert eik.item() == lap.item() == 0.0 and far.grad.abs().max() == 0
