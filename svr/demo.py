@@ -14,7 +14,8 @@ Writes into ``--out`` (default ``outputs/demo``):
   shape, category mean shape, retrieval, the oracle) as rows, and ours minus retrieval;
   ``iou.json`` (``{"split", "categories", "mean", ...}``, the coarse stage under ``"extra"``, the
   baselines under ``"baselines"``); ``per_object.csv`` and ``per_image.csv``;
-* ``timings.json``: training, evaluation and total seconds;
+* ``timings.json``: training, evaluation and total seconds, and per stage the steps planned and reached
+  (fewer reached: the stage's time cap stopped it);
 * ``predictions.png``: per category one test input beside renders of the predictions;
 * ``meshes/*.ply``: marching-cubes meshes of the full model's predictions for those inputs.
 """
@@ -167,6 +168,20 @@ def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progres
             "files": [str(p) for p in files.values()] + [str(p) for p in pictures]}
 
 
+def stage_steps(cfg, run_dir: Path) -> dict[str, dict[str, Optional[int]]]:
+    """Per scheduled stage, the steps its config planned and the steps its ``final.ckpt`` reached
+    (None where the stage has not finished). A stage that reached fewer was stopped by its time cap
+    (``stage.<name>.max_time``): that run trained less than the demo's schedule."""
+    from .models.module import load_checkpoint
+
+    out: dict[str, dict[str, Optional[int]]] = {}
+    for stage in cfg.stage.schedule:
+        final = Path(run_dir) / stage / "checkpoints" / "final.ckpt"
+        reached = int(load_checkpoint(final)["global_step"]) if final.is_file() else None
+        out[str(stage)] = {"planned": int(cfg.stage[stage].max_steps), "reached": reached}
+    return out
+
+
 def resume_point(run_dir: Path, schedule: Sequence[str]) -> tuple[bool, Optional[Path]]:
     """Where a demo run left off: (finished, checkpoint to resume from).
 
@@ -229,8 +244,9 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
         train_seconds = time.time() - start
     t_eval = time.time()
     result = evaluate_run(cfg, run_dir, out_dir, progress=not args.quiet, protocol_workers=args.protocol_workers)
+    steps = stage_steps(cfg, run_dir)
     timings = {"train_seconds": train_seconds, "eval_seconds": time.time() - t_eval,
-               "total_seconds": time.time() - start}
+               "total_seconds": time.time() - start, "steps": steps}
     from mvr.outputs import write_json
 
     result["files"].append(str(write_json(out_dir / "timings.json", timings)))
@@ -239,6 +255,11 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     if train_seconds is not None:
         print(f"training {train_seconds / 60:.1f} min, evaluation {timings['eval_seconds'] / 60:.1f} min, "
               f"total {timings['total_seconds'] / 60:.1f} min")
+    print("steps (planned / reached): " + ", ".join(f"{k} {v['planned']} / {v['reached']}" for k, v in steps.items()))
+    short = [k for k, v in steps.items() if v["reached"] is not None and v["reached"] < v["planned"]]
+    if short:
+        print(f"warning: the time cap stopped {', '.join(short)} early: this run trained less than the demo's "
+              f"schedule, so its table differs from the README's")
     print(f"outputs in {out_dir}:")
     for f in result["files"]:
         print(f"  {f}")

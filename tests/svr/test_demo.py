@@ -36,7 +36,10 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     for f in ("table.csv", "per_object.csv", "per_image.csv", "predictions.png", "timings.json"):
         assert (out / f).is_file(), f
     assert len(list((out / "meshes").glob("*.ply"))) == 2
-    assert json.loads((out / "timings.json").read_text())["train_seconds"] > 0
+    timings = json.loads((out / "timings.json").read_text())
+    assert timings["train_seconds"] > 0
+    assert timings["steps"] == {s: {"planned": 2, "reached": 2} for s in ("coarse", "refine", "joint")}
+    assert "steps (planned / reached): coarse 2 / 2, refine 2 / 2, joint 2 / 2" in printed
 
     # A finished run is evaluated again, not retrained.
     final = out / "train" / "joint" / "checkpoints" / "final.ckpt"
