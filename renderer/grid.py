@@ -30,6 +30,16 @@ def _as_bound(value: BoundLike, name: str, dtype: torch.dtype, device: torch.dev
     return t
 
 
+def require_finite(values: torch.Tensor, name: str) -> None:
+    """Raises ValueError naming ``name`` when ``values`` (any shape) holds NaN or Inf.
+
+    One min/max pass over the tensor (NaN propagates to both): cheap beside a march.
+    """
+    lowest, highest = torch.aminmax(values.detach())
+    if not (math.isfinite(lowest) and math.isfinite(highest)):
+        raise ValueError(f"{name} contains NaN or Inf; expected finite SDF samples")
+
+
 class SDFGrid:
     """A batch of SDF grids with an axis-aligned bounding box.
 
@@ -54,9 +64,7 @@ class SDFGrid:
             raise ValueError("values must hold at least one grid (B >= 1)")
         if min(values.shape[1:]) < 2:
             raise ValueError(f"values needs at least 2 samples per axis, got {tuple(values.shape[1:])}")
-        lowest, highest = torch.aminmax(values.detach())  # one pass; NaN propagates to both
-        if not (math.isfinite(lowest) and math.isfinite(highest)):
-            raise ValueError("values contains NaN or Inf")
+        require_finite(values, "values")
         self.values = values
         self.bbox_min = _as_bound(bbox_min, "bbox_min", values.dtype, values.device)
         self.bbox_max = _as_bound(bbox_max, "bbox_max", values.dtype, values.device)

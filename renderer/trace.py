@@ -7,7 +7,7 @@ from dataclasses import dataclass
 import torch
 
 from .cameras import Cameras
-from .grid import SDFGrid
+from .grid import SDFGrid, require_finite
 from .reference import march_reference
 from .settings import TraceSettings
 
@@ -111,6 +111,9 @@ def sphere_trace(
         raise TypeError(f"grid must be an SDFGrid, got {type(grid).__name__}")
     if not isinstance(cameras, Cameras):
         raise TypeError(f"cameras must be a Cameras, got {type(cameras).__name__}")
+    # SDFGrid checks its values when built but keeps the tensor without a copy: an in-place change
+    # (an optimiser step, a caller's edit) since then would march and shade NaN silently.
+    require_finite(grid.values, "grid.values")
     gidx = camera_grid_index(grid, cameras)
     cams = cameras.to(device=grid.device, dtype=grid.dtype)
     origins, directions = cams.rays()

@@ -137,6 +137,17 @@ def test_bad_grid_values_raise(values, word):
         SDFGrid(values)
 
 
+@pytest.mark.parametrize("bad", [float("nan"), float("inf")])
+@pytest.mark.parametrize("backend", ["reference", "cpu"])
+def test_values_made_non_finite_after_construction_raise_at_render(bad, backend):
+    # SDFGrid keeps its tensor without a copy, so an optimiser step or a caller can spoil it later.
+    grid = SDFGrid.from_function(sphere_sdf(0.5), 8)
+    cams = Cameras.look_at([[0.0, 0.0, 3.0]], image_size=4)
+    grid.values[0, 3, 4, 2] = bad
+    with pytest.raises(ValueError, match="grid.values contains NaN or Inf"):
+        render(grid, cams, ALL, backend=backend)
+
+
 def test_bad_grid_arguments_raise():
     with pytest.raises(TypeError, match="values"):
         SDFGrid(torch.zeros(4, 4, 4, dtype=torch.int32))
