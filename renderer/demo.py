@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 import os
-import tempfile
+import secrets
 from pathlib import Path
 
 import numpy as np
@@ -29,10 +29,13 @@ def save_png(path: Path, image: np.ndarray) -> None:
 
     arr = (np.clip(image, 0.0, 1.0) * 255).round().astype(np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".png")
-    os.close(fd)
-    Image.fromarray(arr).save(tmp, format="PNG")
-    os.replace(tmp, path)
+    # PIL creates the temporary file plainly, so the umask sets its mode (mkstemp would give 0600).
+    tmp = path.parent / f".{path.name}.{secrets.token_hex(8)}.tmp"
+    try:
+        Image.fromarray(arr).save(tmp, format="PNG")
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
 from pathlib import Path
 from typing import Any, Optional
 
@@ -28,19 +28,17 @@ class AtomicCheckpointIO(TorchCheckpointIO):
             raise TypeError(f"storage_options is not supported by {type(self).__name__}, got {storage_options!r}")
         target = Path(path)
         target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+        tmp = target.parent / f".{target.name}.{secrets.token_hex(8)}.tmp"
         try:
-            with os.fdopen(fd, "wb") as f:
+            # A plain exclusive create, so the umask sets the mode as for every other output
+            # (mkstemp would give 0600: colleagues on a shared folder could not read the checkpoint).
+            with open(tmp, "xb") as f:
                 torch.save(checkpoint, f)
                 f.flush()
                 os.fsync(f.fileno())
             os.replace(tmp, target)
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except FileNotFoundError:
-                pass
-            raise
+        finally:
+            tmp.unlink(missing_ok=True)  # gone after the rename; a failed write's leftover otherwise
 
 
 def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4) -> np.ndarray:

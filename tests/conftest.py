@@ -32,3 +32,16 @@ def _quiet_fallback():
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message="fused .* march unavailable")
         yield
+
+
+@pytest.fixture
+def umask_022():
+    """Runs the test under umask 0o022 (files 0644, folders 0755 when created plainly), then restores
+    the caller's umask."""
+    import os
+
+    previous = os.umask(0o022)
+    try:
+        yield
+    finally:
+        os.umask(previous)

@@ -329,6 +329,17 @@ def test_cache_is_reused_and_generation_is_atomic(tiny_procedural, tmp_path, mon
     assert settings.key() != small.key() and len(settings.key()) == 12
 
 
+def test_cache_folders_and_files_follow_the_umask(tmp_path, umask_022):
+    import stat
+
+    cache = tmp_path / "cache"
+    root = procedural.ensure_procedural_dataset(cache, ProceduralSettings(categories=("mug",), train=1, val=0, test=0,
+                                                                          supersample=1), progress=False)
+    modes = {p.relative_to(tmp_path).as_posix(): stat.S_IMODE(p.stat().st_mode) for p in [cache, *cache.rglob("*")]}
+    assert len(modes) > 3 and root.relative_to(tmp_path).as_posix() in modes
+    assert {name: mode for name, mode in modes.items() if mode != (0o755 if (tmp_path / name).is_dir() else 0o644)} == {}
+
+
 GENERATE = """
 import sys
 from svr.data.procedural import ProceduralSettings, ensure_procedural_dataset
