@@ -168,9 +168,13 @@ def perturbed_cameras(cameras: Cameras, offsets: torch.Tensor) -> Cameras:
                            image_size=cameras.image_size, dtype=cameras.dtype)
 
 
-def _comparison_image(targets: torch.Tensor, renders: torch.Tensor, margin: int = 4) -> np.ndarray:
-    """Rows target / render / |difference| of (K, H, W, C) images, as one (3h, K w, 3) array,
-    cropped to the pixels where either image differs from its corner pixel (the background)."""
+def _comparison_image(targets: torch.Tensor, renders: torch.Tensor, views: Sequence[int],
+                      margin: int = 4) -> np.ndarray:
+    """Rows target / render / |difference| of (K, H, W, C) images, one column per view of ``views``
+    (K indices, the column labels), cropped to the pixels where either image differs from its corner
+    pixel (the background); a labelled (H', W', 3) array (``sdfcommon.pictures.labelled_grid``)."""
+    from sdfcommon.pictures import labelled_grid
+
     background = targets[:, :1, :1, :]
     busy = ((targets - background).abs().amax(dim=(0, 3)) > 0) | ((renders - background).abs().amax(dim=(0, 3)) > 0)
     rows, cols = torch.nonzero(busy, as_tuple=True)
@@ -179,15 +183,10 @@ def _comparison_image(targets: torch.Tensor, renders: torch.Tensor, margin: int 
         r0, r1 = max(int(rows.min()) - margin, 0), min(int(rows.max()) + margin + 1, h)
         c0, c1 = max(int(cols.min()) - margin, 0), min(int(cols.max()) + margin + 1, w)
         targets, renders = targets[:, r0:r1, c0:c1], renders[:, r0:r1, c0:c1]
-
-    def row(x: torch.Tensor) -> np.ndarray:
-        x = x.detach().float()
-        if x.shape[-1] == 1:
-            x = x.expand(*x.shape[:-1], 3)
-        return np.concatenate([x[k].numpy() for k in range(x.shape[0])], axis=1)
-
-    diff = (targets - renders).abs()
-    return np.concatenate([row(targets), row(renders), row(diff)], axis=0)
+    tiles = torch.stack([targets, renders, (targets - renders).abs()]).detach().float()
+    if tiles.shape[-1] == 1:
+        tiles = tiles[..., 0]
+    return labelled_grid(tiles.numpy(), ["target", "render", "|difference|"], [f"view {v}" for v in views])
 
 
 def reconstruct(
@@ -321,7 +320,7 @@ def reconstruct(
     with torch.no_grad():
         rendered = render(final, cams_show, scene, trace, backend)
     target_show = tgt.render(cams_show, scene).images
-    outputs.write_png(out / "views.png", _comparison_image(target_show, rendered.image))
+    outputs.write_png(out / "views.png", _comparison_image(target_show, rendered.image, shown))
 
     metrics: dict = {"target": tgt.name, "source": tgt.source}
     if len(mesh.faces):

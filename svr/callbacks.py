@@ -11,6 +11,8 @@ import pytorch_lightning as pl
 import torch
 from pytorch_lightning.plugins.io import TorchCheckpointIO
 
+from sdfcommon.pictures import labelled_grid
+
 
 class AtomicCheckpointIO(TorchCheckpointIO):
     """Writes each checkpoint to a temporary file in the target's folder, flushes it to disk, then
@@ -41,16 +43,17 @@ class AtomicCheckpointIO(TorchCheckpointIO):
             tmp.unlink(missing_ok=True)  # gone after the rename; a failed write's leftover otherwise
 
 
-def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4) -> np.ndarray:
-    """One picture of a training batch: per sample a row with the input view, then per supervised
-    view the target silhouette, the rendered silhouette and (when rendered) the target and rendered
-    colours, all at the render size (the input is area-resized to it).
+def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4, min_tile: int = 128) -> np.ndarray:
+    """One labelled picture of a training batch: per sample a row with the input view, then per
+    supervised view the target silhouette, the rendered silhouette and (when rendered) the target and
+    rendered colours, all at the render size (the input is area-resized to it), each tile scaled up
+    to at least ``min_tile`` pixels (``sdfcommon.pictures.labelled_grid``).
 
     Args:
         visuals: ``input`` (B, 4, H, W), ``target`` (B, V, 4, h, w), ``silhouette`` (B, V, h, w),
             optional ``colour`` (B, V, 3, h, w); CPU tensors in [0, 1].
     Returns:
-        (rows * h, cols * w, 3) float32 array in [0, 1].
+        (H', W', 3) float32 array in [0, 1]: rows labelled by sample, columns by what they show.
     """
     target = visuals["target"]
     b, v, _, h, w = target.shape
@@ -59,6 +62,11 @@ def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4) -> np.nd
     if inp.shape[-1] != w:
         inp = torch.nn.functional.adaptive_avg_pool2d(inp, (h, w))
     # RGB over white where alpha says there is nothing (NMR-style inputs are already composited).
+    columns = ["input"]
+    for k in range(v):
+        columns += [f"view {k} target mask", f"view {k} render mask"]
+        if "colour" in visuals:
+            columns += [f"view {k} target colour", f"view {k} render colour"]
     rows = []
     for i in range(n):
         tiles = [inp[i, :3].permute(1, 2, 0)]
@@ -68,14 +76,16 @@ def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4) -> np.nd
             if "colour" in visuals:
                 tiles.append(target[i, k, :3].permute(1, 2, 0))
                 tiles.append(visuals["colour"][i, k].clamp(0, 1).permute(1, 2, 0))
-        rows.append(torch.cat(tiles, dim=1))
-    return torch.cat(rows, dim=0).float().clamp(0, 1).numpy()
+        rows.append(torch.stack(tiles))
+    tiles = torch.stack(rows).detach().float().clamp(0, 1).numpy()
+    return labelled_grid(tiles, [f"sample {i}" for i in range(n)], columns, min_tile=min_tile)
 
 
 class ImageLogger(pl.Callback):
-    """Every ``every_n_steps`` training steps, logs a picture of the batch (inputs, target
-    silhouettes, renders of the prediction; colours too when shading is rendered) to TensorBoard
-    and writes it as a PNG under ``<folder>/step_XXXXXXX.png`` (the CSV logger has no images).
+    """Every ``every_n_steps`` training steps, logs a labelled picture of the batch (``visual_grid``:
+    inputs, target silhouettes, renders of the prediction; colours too when shading is rendered) to
+    TensorBoard and writes it as a PNG under ``<folder>/step_XXXXXXX.png`` (the CSV logger has no
+    images).
 
     Args:
         every_n_steps: period in optimiser steps (0 disables).

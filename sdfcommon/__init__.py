@@ -1,0 +1,1 @@
+"""What the applications (svr, mvr) share, below both: never imports svr or mvr."""

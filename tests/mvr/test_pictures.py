@@ -1,0 +1,21 @@
+"""views.png: the rows (target, render, |difference|) and the columns (the views) are labelled and the
+tiles legible."""
+from __future__ import annotations
+
+import numpy as np
+from PIL import Image
+
+from mvr import EvalSettings, OptimSettings, Schedule, TargetSettings, configure_runtime, reconstruct
+
+
+def test_views_png_is_labelled_and_legible(tmp_path):
+    configure_runtime(threads=1)
+    views = (0, 6, 12)
+    reconstruct("sphere", tmp_path, target_settings=TargetSettings(extent=1.0, mesh_resolution=32),
+                schedule=Schedule(resolutions=[8]), optim=OptimSettings(max_passes=1),
+                evaluation=EvalSettings(samples=200, views=views), progress=False)
+    picture = np.asarray(Image.open(tmp_path / "views.png"))
+    assert picture.shape[0] > 3 * 96 + 10 and picture.shape[1] > len(views) * 96 + 40  # legible tiles and labels
+    dark = picture.max(axis=-1) < 128
+    assert dark[:12].any() and dark[:, :40].any()  # column labels above, row labels at the left
+    assert picture[:4].min() == 255 and picture[:, :4].min() == 255  # white margin around the labels
