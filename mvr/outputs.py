@@ -6,6 +6,7 @@ import csv
 import io
 import json
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Callable, IO, Sequence
@@ -97,3 +98,23 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
 
     arr = (np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0) * 255).round().astype(np.uint8)
     return atomic_write(path, lambda f: Image.fromarray(arr).save(f, format="PNG"))
+
+
+# The atomic writers' temporary names: "." + the target's name + "." + 8 random characters (mkstemp)
+# or 16 hex digits (svr's checkpoint writer) + ".tmp".
+_TEMPORARY = re.compile(r"^\..+\.[A-Za-z0-9_]{8,16}\.tmp$")
+
+
+def remove_stale_temporaries(folder: str | Path) -> list[Path]:
+    """Deletes the temporary files that atomic writes (``atomic_write``, svr's checkpoint writer) left
+    in ``folder`` and its subfolders when a process was killed mid-write (SIGKILL gives no chance to
+    clean up). Call it only where no other process is writing. Returns the files removed."""
+    removed = []
+    folder = Path(folder)
+    if not folder.is_dir():
+        return removed
+    for path in folder.rglob(".*.tmp"):
+        if path.is_file() and _TEMPORARY.match(path.name):
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed

@@ -21,10 +21,15 @@ another stage (e.g. a coarse one with ``stage=refine``) only initialises the net
 """
 from __future__ import annotations
 
+import contextlib
+import csv
 import logging
+import signal
+import sys
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import pytorch_lightning as pl
 import torch
@@ -32,9 +37,10 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.loggers import CSVLogger
+from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
-from mvr.outputs import write_text
+from mvr.outputs import remove_stale_temporaries, write_csv, write_text
 
 from .callbacks import AtomicCheckpointIO
 from .distributed import launch_rank_is_zero
@@ -45,6 +51,8 @@ from .models.module import (CHECKPOINT_KEY, STAGES, SVRLightningModule, check_st
 from .models.network import SVRNet
 
 log = logging.getLogger(__name__)
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
 SHADING_MODES = ("auto", True, False)
 INIT_FROM = ("best", "final")
@@ -81,6 +89,47 @@ class TrainResult:
         if which not in ("best", "final"):
             raise ValueError(f"which must be 'best' or 'final', got {which!r}")
         return res.final
+
+
+class TrainingStopped(SystemExit):
+    """Training stopped by a signal (SIGTERM: ``kill``, a scheduler's time limit, a container stop)
+    after saving a resumable checkpoint. Its exit status is 128 + the signal number (143 for
+    SIGTERM), as a shell reports a process killed by that signal, so ``train && evaluate`` chains
+    and job schedulers see a failure."""
+
+    def __init__(self, message: str, signum: int = int(signal.SIGTERM), checkpoint: Optional[Path] = None):
+        super().__init__(128 + int(signum))
+        self.message = message
+        self.checkpoint = checkpoint
+
+
+class SaveOnStop(pl.Callback):
+    """Saves a resumable checkpoint (``path``, the stage's ``last.ckpt``) when a SIGTERM arrives.
+
+    Lightning notes the signal and stops at the end of the step; the checkpoint is written at
+    the step's ``on_train_batch_end``, where Lightning's periodic checkpoints are written too (the
+    state its resume logic knows best, also at the end of an epoch; one written from Lightning's
+    exception at the end of an epoch resumes one epoch too far). A signal outside a training step
+    (validation, the sanity check) is saved from the exception. The training data loader records
+    its place in the epoch (``ResumableLoader``).
+    """
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.saved_step: Optional[int] = None
+
+    def _save(self, trainer: pl.Trainer) -> None:
+        if self.saved_step is None:
+            trainer.save_checkpoint(self.path)
+            self.saved_step = int(trainer.global_step)
+
+    def on_train_batch_end(self, trainer: pl.Trainer, *args: Any) -> None:
+        if trainer.received_sigterm:
+            self._save(trainer)
+
+    def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
+        if isinstance(exception, SIGTERMException):
+            self._save(trainer)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -149,32 +198,86 @@ def _instantiate_group(group: Optional[DictConfig], **extra) -> list:
     return out
 
 
-def keep_previous_metrics(log_dir: Path) -> Optional[Path]:
-    """Moves a ``metrics.csv`` left by an earlier (resumed or repeated) run of a stage aside to
-    ``metrics.<k>.csv``: Lightning's CSV logger would delete it. Returns the new name, if any."""
+def continue_metrics(log_dir: Path, resume_step: Optional[int]) -> Optional[Path]:
+    """Keeps the metrics of earlier runs of a stage in its ``metrics.csv``, which Lightning's CSV
+    logger would delete when it starts.
+
+    Resuming (``resume_step``: the checkpoint's step), the rows up to that step are kept in
+    ``metrics.csv`` and the logger appends to them (rows after it were logged by steps the resumed
+    run trains again). Otherwise an earlier file is moved aside to ``metrics.<k>.csv``.
+
+    Returns:
+        the file holding the earlier rows (``metrics.csv`` or the moved one), or None.
+    """
     old = log_dir / "metrics.csv"
     if not old.is_file():
         return None
     k = 1
     while (log_dir / f"metrics.{k}.csv").exists():
         k += 1
-    return old.rename(log_dir / f"metrics.{k}.csv")
+    aside = old.rename(log_dir / f"metrics.{k}.csv")
+    if resume_step is None:
+        return aside
+    with open(aside, newline="") as f:
+        reader = csv.DictReader(f)
+        columns = list(reader.fieldnames or [])
+        rows = [r for r in reader if _step_of(r) is not None and _step_of(r) <= resume_step]
+    write_csv(old, rows, columns)
+    aside.unlink()
+    return old
 
 
-def build_trainer(cfg: DictConfig, stage: str, stage_dir: Path) -> pl.Trainer:
-    """A Trainer for one stage: its step budget, callbacks (checkpoints into ``stage_dir``),
-    loggers (into ``stage_dir``) and atomic checkpoint files."""
+def _step_of(row: dict) -> Optional[int]:
+    try:
+        return int(float(row.get("step") or ""))
+    except ValueError:
+        return None
+
+
+def _adopt_metrics_file(logger: CSVLogger) -> None:
+    """Points a fresh CSV logger at the ``metrics.csv`` kept by ``continue_metrics``: it appends
+    (the writer would delete the file, and warn about the folder, when it starts)."""
+    log_dir = Path(logger.log_dir)
+    path = log_dir / "metrics.csv"
+    if not path.is_file():
+        return
+    with open(path, newline="") as f:
+        columns = next(csv.reader(f), [])
+    kept = log_dir.rename(log_dir.with_name(f".{log_dir.name}.kept"))
+    writer = logger.experiment  # creates log_dir anew, empty
+    for item in kept.iterdir():
+        item.rename(log_dir / item.name)
+    kept.rmdir()
+    writer.metrics_keys = list(columns)
+
+
+def stage_max_steps(cfg: DictConfig, stage: str) -> int:
+    """``stage.<stage>.max_steps``, checked: a whole number of steps >= 1 (Lightning would take -1
+    as "no limit")."""
+    value = cfg.stage[stage].get("max_steps")
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"stage.{stage}.max_steps must be an integer >= 1, got {value!r}")
+    return value
+
+
+def build_trainer(cfg: DictConfig, stage: str, stage_dir: Path, resume_step: Optional[int] = None) -> pl.Trainer:
+    """A Trainer for one stage: its step budget, callbacks (checkpoints into ``stage_dir``; a
+    checkpoint at a SIGTERM), loggers (into ``stage_dir``; resuming from step ``resume_step``, the
+    CSV log goes on in the same file) and atomic checkpoint files."""
     stage_cfg = cfg.stage[stage]
+    max_steps = stage_max_steps(cfg, stage)
     callbacks = _instantiate_group(cfg.get("callbacks"))
     for cb in callbacks:
         if isinstance(cb, ModelCheckpoint) and cb.dirpath is None:
             cb.dirpath = str(stage_dir / "checkpoints")
+    callbacks.append(SaveOnStop(stage_dir / "checkpoints" / "last.ckpt"))
     loggers = _instantiate_group(cfg.get("logger"), save_dir=str(stage_dir))
     for lg in loggers:
         if isinstance(lg, CSVLogger) and launch_rank_is_zero():
-            keep_previous_metrics(Path(lg.log_dir))
+            if continue_metrics(Path(lg.log_dir), resume_step) == Path(lg.log_dir) / "metrics.csv":
+                _adopt_metrics_file(lg)
     kwargs: dict[str, Any] = dict(
-        max_steps=int(stage_cfg.max_steps),
+        max_steps=max_steps,
         callbacks=callbacks,
         logger=loggers if loggers else False,
         default_root_dir=str(stage_dir),
@@ -213,60 +316,224 @@ def plan_schedule(schedule: list[str], ckpt_stage: Optional[str]) -> tuple[int, 
     return 0, False
 
 
+# ------------------------------------------------------------------------------------------------
+# Resuming a run
+
+
+def run_folder_of(ckpt_path: str | Path) -> Optional[Path]:
+    """The training run a checkpoint belongs to: ``RUN`` for ``RUN/<stage>/checkpoints/<name>.ckpt``
+    when ``RUN/config.yaml`` exists (a folder this module wrote); None otherwise."""
+    p = Path(ckpt_path).expanduser().resolve()
+    if p.parent.name != "checkpoints" or p.parent.parent.name not in STAGES:
+        return None
+    run = p.parent.parent.parent
+    return run if (run / "config.yaml").is_file() else None
+
+
+def latest_checkpoint(run_dir: str | Path, schedule: Sequence[str]) -> Optional[Path]:
+    """What a stopped run resumes from: the newest of ``last.ckpt`` and ``final.ckpt`` of the latest
+    scheduled stage that wrote one (None: no stage has)."""
+    for stage in reversed(list(schedule)):
+        d = Path(run_dir) / stage / "checkpoints"
+        found = [d / n for n in ("final.ckpt", "last.ckpt") if (d / n).is_file()]
+        if found:
+            return max(found, key=lambda f: f.stat().st_mtime_ns)
+    return None
+
+
+# What may differ from a run's saved config when it is resumed: where and how fast it runs, and
+# how long the stages train. Everything else (model, data, losses, schedule) must stay.
+RESUMABLE_KEYS = ("ckpt_path", "trainer.", "data.num_workers", "data.pin_memory", "data.progress",
+                  "data.generation_workers", "stage.*.max_steps", "stage.*.max_time", "callbacks.progress_bar.")
+
+
+def _may_change(key: str) -> bool:
+    parts = key.split(".")
+    for pattern in RESUMABLE_KEYS:
+        pat = pattern.rstrip(".").split(".")
+        if len(parts) < len(pat) or (not pattern.endswith(".") and len(parts) != len(pat)):
+            continue
+        if all(q == "*" or q == k for q, k in zip(pat, parts)):
+            return True
+    return False
+
+
+def _leaves(node: Any, prefix: str = "") -> dict[str, Any]:
+    if isinstance(node, dict) and node:
+        out: dict[str, Any] = {}
+        for k, v in node.items():
+            out.update(_leaves(v, f"{prefix}{k}."))
+        return out
+    return {prefix[:-1]: node}
+
+
+def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[str]) -> tuple[DictConfig, list[str]]:
+    """The config a resumed run goes on with: the run's saved ``config.yaml``, with the requested
+    (freshly composed) config's values where they are allowed to change (``RESUMABLE_KEYS``).
+
+    Only settings the command line names (``overrides``, hydra's syntax) count as requested; what
+    it leaves at the defaults comes from the run. Raises ValueError naming requested settings that
+    would change the run (the model, the data, ...).
+
+    Returns:
+        (config, the changes made, "key: old -> new").
+    """
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    saved_leaves = _leaves(OmegaConf.to_container(saved, resolve=True))
+    requested_leaves = _leaves(OmegaConf.to_container(requested, resolve=True))
+    touched: list[str] = []
+    for o in OverridesParser.create().parse_overrides(list(overrides)):
+        key = o.key_or_group
+        if key.startswith("hydra"):
+            continue
+        if o.is_delete():
+            raise ValueError(f"{o.input_line}: a resumed run keeps its settings; ~ (delete) is not possible")
+        if (CONFIG_DIR / key).is_dir() and "." not in key:
+            # A config group: its own key, or the whole config for a global one (experiment=...).
+            touched.append(key if key in saved else "")
+        else:
+            touched.append(key)
+
+    def requested_here(path: str) -> bool:
+        return any(t == "" or path == t or path.startswith(t + ".") for t in touched)
+
+    merged = saved.copy()
+    changes, refused = [], []
+    missing = object()
+    for path in sorted(set(saved_leaves) | set(requested_leaves)):
+        old, new = saved_leaves.get(path, missing), requested_leaves.get(path, missing)
+        if old == new or not requested_here(path):
+            continue
+        if not _may_change(path):
+            refused.append(path)
+            continue
+        OmegaConf.update(merged, path, None if new is missing else new, merge=False)
+        changes.append(f"{path}: {None if old is missing else old!r} -> {None if new is missing else new!r}")
+    if refused:
+        shown = ", ".join(refused[:4]) + (f" and {len(refused) - 4} more" if len(refused) > 4 else "")
+        raise ValueError(f"resuming a run keeps its config.yaml; the command line would change {shown}. Only "
+                         f"{', '.join(k.rstrip('.') for k in RESUMABLE_KEYS)} may change (start a new run instead)")
+    return merged, changes
+
+
 def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
     """Runs the stages of ``cfg.stage.schedule`` in order (see the module docstring).
+
+    Resuming (``ckpt_path`` of a scheduled stage) into the checkpoint's own run folder goes on with
+    that run: its best-checkpoint tracking, its metrics file, its place in the training data. On a
+    SIGTERM the stage saves ``last.ckpt`` and ``TrainingStopped`` is raised.
 
     Args:
         cfg: the composed train config (configs/train.yaml).
         run_dir: the run's output folder (hydra's run dir for train.py).
     Returns:
         TrainResult with each stage's checkpoints.
+    Raises:
+        TrainingStopped: a SIGTERM stopped a stage (its ``last.ckpt`` holds the step reached).
     """
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    keep_freed_memory()  # a step's 64^3 grids reuse pages instead of faulting them in again
-    if launch_rank_is_zero():  # the other DDP processes run this too, in the same folder
-        write_text(run_dir / "config.yaml", OmegaConf.to_yaml(cfg, resolve=True))
-
     schedule = [check_stage(str(s)) for s in cfg.stage.schedule]
     if not schedule:
         raise ValueError(f"stage.schedule must name at least one of {STAGES}")
     if len(set(schedule)) != len(schedule):
         raise ValueError(f"stage.schedule must not repeat a stage, got {schedule}")
+    for stage in schedule:
+        stage_max_steps(cfg, stage)
     init_from = cfg.stage.get("init_from", "best")
     if init_from not in INIT_FROM:
         raise ValueError(f"stage.init_from must be one of {INIT_FROM}, got {init_from!r}")
+
+    ckpt_path = cfg.get("ckpt_path")
+    if ckpt_path is not None and Path(ckpt_path).expanduser().is_dir():
+        found = latest_checkpoint(Path(ckpt_path).expanduser(), schedule)
+        if found is None:
+            raise FileNotFoundError(f"ckpt_path={ckpt_path}: the folder holds no <stage>/checkpoints/last.ckpt or "
+                                    f"final.ckpt of the stages {schedule}: nothing to resume")
+        ckpt_path = str(found)
+    start, resume, resume_step = 0, False, None
+    ckpt = None
+    if ckpt_path is not None:
+        ckpt = load_checkpoint(ckpt_path)
+        start, resume = plan_schedule(schedule, ckpt[CHECKPOINT_KEY]["stage"])
+        resume_step = int(ckpt.get("global_step", 0)) if resume else None
+
+    run_dir.mkdir(parents=True, exist_ok=True)
+    keep_freed_memory()  # a step's 64^3 grids reuse pages instead of faulting them in again
+    if launch_rank_is_zero():  # the other DDP processes run this too, in the same folder
+        for stale in remove_stale_temporaries(run_dir):
+            log.info("removed %s, left by a run killed while writing it", stale)
+        config = cfg
+        if resume and run_folder_of(ckpt_path) == run_dir.resolve():
+            # The run's own config.yaml records what it started from, not the checkpoint it resumes.
+            config = cfg.copy()
+            config.ckpt_path = OmegaConf.load(run_dir / "config.yaml").get("ckpt_path")
+        write_text(run_dir / "config.yaml", OmegaConf.to_yaml(config, resolve=True))
 
     pl.seed_everything(int(cfg.seed), workers=True)
     datamodule = instantiate(cfg.data)
     net = instantiate(cfg.model)
     if not isinstance(net, SVRNet):
         raise TypeError(f"model must instantiate a svr.models.SVRNet, got {type(net).__name__}")
-
-    ckpt_path = cfg.get("ckpt_path")
-    start, resume = 0, False
-    if ckpt_path is not None:
-        ckpt = load_checkpoint(ckpt_path)
-        ckpt_stage = ckpt[CHECKPOINT_KEY]["stage"]
-        start, resume = plan_schedule(schedule, ckpt_stage)
+    if ckpt is not None:
         if not resume:
             load_network_weights(net, ckpt, ckpt_path)
-            log.info("initialised the network from %s (a %s checkpoint)", ckpt_path, ckpt_stage)
+            log.info("initialised the network from %s (a %s checkpoint)", ckpt_path, ckpt[CHECKPOINT_KEY]["stage"])
         else:
-            log.info("resuming stage %s from %s", ckpt_stage, ckpt_path)
-        del ckpt
+            log.info("resuming stage %s at step %d from %s", schedule[start], resume_step, ckpt_path)
+        ckpt = None
 
+    with _stop_outside_fit(run_dir):
+        return _run_schedule(cfg, run_dir, schedule, start, resume, resume_step, ckpt_path, net, datamodule, init_from)
+
+
+_IN_FIT = False  # Lightning's SIGTERM handling is active
+
+
+@contextlib.contextmanager
+def _stop_outside_fit(run_dir: Path):
+    """A SIGTERM outside a stage's ``fit`` (data generation, between stages) raises
+    ``TrainingStopped`` instead of killing the process silently; inside it Lightning handles the
+    signal (``SaveOnStop``). Main thread only (where signal handlers can be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        if not _IN_FIT:
+            message = (f"training stopped by signal {signum} outside a training step; resume from the latest "
+                       f"checkpoint with: python train.py ckpt_path={run_dir}")
+            if launch_rank_is_zero():
+                print(message, file=sys.stderr, flush=True)
+            raise TrainingStopped(message, signum)
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run_schedule(cfg: DictConfig, run_dir: Path, schedule: list[str], start: int, resume: bool,
+                  resume_step: Optional[int], ckpt_path, net: SVRNet, datamodule, init_from: str) -> TrainResult:
+    global _IN_FIT
     results: list[StageResult] = []
     for i, stage in enumerate(schedule[start:], start=start):
         pl.seed_everything(int(cfg.seed) + i, workers=True)
         stage_dir = run_dir / stage
+        resuming = resume and i == start
         module = build_module(cfg, net, stage, datamodule)
-        trainer = build_trainer(cfg, stage, stage_dir)
+        trainer = build_trainer(cfg, stage, stage_dir, resume_step if resuming else None)
         for lg in trainer.loggers:
             lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))
         log.info("stage %s: %d steps -> %s", stage, int(cfg.stage[stage].max_steps), stage_dir)
-        trainer.fit(module, datamodule=datamodule,
-                    ckpt_path=str(ckpt_path) if (resume and i == start) else None)
+        try:
+            _IN_FIT = True
+            trainer.fit(module, datamodule=datamodule, ckpt_path=str(ckpt_path) if resuming else None)
+        except SIGTERMException:
+            raise _stopped(trainer, stage, run_dir) from None
+        finally:
+            _IN_FIT = False
         final = stage_dir / "checkpoints" / "final.ckpt"
         trainer.save_checkpoint(final)
         best, last, score = _checkpoint_callbacks(trainer)
@@ -279,5 +546,16 @@ def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
     return TrainResult(run_dir, tuple(results))
 
 
-__all__ = ["train", "StageResult", "TrainResult", "build_module", "build_scene", "build_trainer",
-           "plan_schedule"]
+def _stopped(trainer: pl.Trainer, stage: str, run_dir: Path) -> TrainingStopped:
+    saver = next((cb for cb in trainer.callbacks if isinstance(cb, SaveOnStop)), None)
+    if saver is None or saver.saved_step is None:
+        return TrainingStopped(f"training stopped by SIGTERM in stage {stage}; no checkpoint was saved at the signal")
+    message = (f"training stopped by SIGTERM in stage {stage} at step {saver.saved_step}; saved {saver.path}. "
+               f"Resume with: python train.py ckpt_path={run_dir}")
+    if launch_rank_is_zero():
+        print(message, file=sys.stderr, flush=True)
+    return TrainingStopped(message, checkpoint=saver.path)
+
+
+__all__ = ["train", "StageResult", "TrainResult", "TrainingStopped", "build_module", "build_scene", "build_trainer",
+           "plan_schedule", "run_folder_of", "latest_checkpoint", "resume_config", "RESUMABLE_KEYS"]

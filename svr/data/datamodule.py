@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Iterator, Optional, Sequence
+from typing import Callable, Iterator, Optional, Sequence
 
 import numpy as np
 import pytorch_lightning as pl
@@ -119,6 +119,15 @@ class ObjectViewSampler(RankShardedSampler):
         self.seed = int(seed)
         self.category_balanced = bool(category_balanced)
         self.num_views = num_views
+        self._resume: Optional[tuple[int, int]] = None  # (epoch, keys of this rank already trained on)
+
+    def resume_at(self, epoch: int, keys: int) -> None:
+        """Makes the next pass over ``epoch`` start after this rank's first ``keys`` keys (what a
+        resumed run had already trained on), and sets the epoch. Other epochs are not affected."""
+        if epoch < 0 or keys < 0:
+            raise ValueError(f"resume position must be non-negative, got epoch {epoch}, keys {keys}")
+        self.set_epoch(epoch)
+        self._resume = (int(epoch), int(keys))
 
     def _per_rank(self) -> tuple[RankInfo, int]:
         ranks = self.ranks
@@ -148,11 +157,44 @@ class ObjectViewSampler(RankShardedSampler):
     def __iter__(self) -> Iterator[tuple[int, tuple[int, ...]]]:
         ranks, per_rank = self._per_rank()
         end = per_rank * ranks.world_size
-        for i, key in enumerate(self.stream()):
+        skip = 0
+        if self._resume is not None and self._resume[0] == self.epoch:
+            skip = self._resume[1]
+        self._resume = None  # once: the next pass over any epoch is whole
+        mine = 0
+        for i, key in enumerate(self.stream()):  # drawn even when skipped: the stream stays the same
             if i >= end:
                 break
             if i % ranks.world_size == ranks.rank:
-                yield key
+                mine += 1
+                if mine > skip:
+                    yield key
+
+
+class ResumableLoader(DataLoader):
+    """A DataLoader over an ``ObjectViewSampler`` whose position within the epoch goes into the
+    checkpoint: Lightning saves ``state_dict()`` with the loops and hands it to ``load_state_dict``
+    before the resumed run iterates, so a resumed run trains on exactly the batches the
+    uninterrupted one would have (without it the epoch would restart: batches replayed, others
+    never seen).
+
+    Args:
+        position: returns how many batches of the current epoch have been trained on (the
+            trainer's count: the loader itself runs ahead of training by its prefetch).
+        The rest are DataLoader's; ``sampler`` must be an ``ObjectViewSampler``.
+    """
+
+    def __init__(self, *args, position: Callable[[], int], **kwargs):
+        super().__init__(*args, **kwargs)
+        if not isinstance(self.sampler, ObjectViewSampler):
+            raise TypeError(f"ResumableLoader needs an ObjectViewSampler, got {type(self.sampler).__name__}")
+        self._position = position
+
+    def state_dict(self) -> dict[str, int]:
+        return {"epoch": int(self.sampler.epoch), "batches": int(self._position())}
+
+    def load_state_dict(self, state: dict[str, int]) -> None:
+        self.sampler.resume_at(int(state["epoch"]), int(state["batches"]) * int(self.batch_size))
 
 
 class EvalShardSampler(RankShardedSampler):
@@ -359,15 +401,26 @@ class NMRDataModule(pl.LightningDataModule):
             self._sampler = ObjectViewSampler(ds.counts, self.views_per_sample, n, self.seed, self.category_balanced)
         return self._sampler
 
-    def _loader(self, dataset: Dataset, batch_size: int, **kwargs) -> DataLoader:
-        return DataLoader(dataset, batch_size=batch_size, collate_fn=collate_batch, num_workers=self.num_workers,
-                          pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0, **kwargs)
+    def _loader(self, dataset: Dataset, batch_size: int, loader: type = DataLoader, **kwargs) -> DataLoader:
+        return loader(dataset, batch_size=batch_size, collate_fn=collate_batch, num_workers=self.num_workers,
+                      pin_memory=self.pin_memory, persistent_workers=self.num_workers > 0, **kwargs)
+
+    def batches_trained_this_epoch(self) -> int:
+        """Training batches of the current epoch whose step has run (Lightning's count; 0 when no
+        trainer is attached)."""
+        trainer = getattr(self, "trainer", None)  # Lightning attaches it
+        if trainer is None:
+            return 0
+        return int(trainer.fit_loop.epoch_loop.batch_progress.current.processed)
 
     def train_dataloader(self) -> DataLoader:
         """Batches of ``batch_size`` random objects x V random views (drop_last: BatchNorm-safe); with
-        several processes, per process (the effective batch is ``batch_size`` x processes)."""
-        return self._loader(TrainViews(self.dataset("train")), self.batch_size, sampler=self.train_sampler(),
-                            drop_last=len(self.train_sampler()) >= self.batch_size)
+        several processes, per process (the effective batch is ``batch_size`` x processes). A
+        checkpoint records where in the epoch training was, and a resumed run goes on from there
+        (``ResumableLoader``)."""
+        return self._loader(TrainViews(self.dataset("train")), self.batch_size, loader=ResumableLoader,
+                            sampler=self.train_sampler(), drop_last=len(self.train_sampler()) >= self.batch_size,
+                            position=self.batches_trained_this_epoch)
 
     def val_dataloader(self) -> DataLoader:
         """Every (object, view) of the val split (thinned by val_views / val_objects_per_category), V = 1;

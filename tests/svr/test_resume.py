@@ -1,0 +1,182 @@
+"""Stopping and resuming training: a SIGTERM saves a resumable checkpoint and exits non-zero; a
+resumed run goes on in its own folder with its own config and ends with the weights of a run
+that was never interrupted; stale temporary files are cleaned; bad step budgets are refused."""
+from __future__ import annotations
+
+import csv
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import pytorch_lightning as pl
+import torch
+from omegaconf import OmegaConf
+
+from svr.models.module import load_checkpoint
+from svr.train_main import resume_arguments
+from svr.training import TrainingStopped, latest_checkpoint, resume_config, run_folder_of, train
+
+from .test_train import compose_train, state, tiny_overrides
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def data_overrides(tmp_path_factory) -> list[str]:
+    """A tiny procedural dataset; 3 batches per epoch, so runs cross epochs."""
+    cache = tmp_path_factory.mktemp("resume_cache")
+    return [f"data.cache_dir={cache}", "data.categories=[chair,mug]", "data.train=2", "data.val=1", "data.test=1",
+            "data.batch_size=2", "data.eval_batch_size=8", "data.val_views=[0]", "data.progress=false",
+            "data.supersample=1", "data.samples_per_epoch=6"]
+
+
+class TermAtStep(pl.Callback):
+    """Sends this process a SIGTERM after training step ``step`` of ``stage`` (as ``kill`` would)."""
+
+    def __init__(self, stage: str, step: int):
+        self.stage, self.step = stage, step
+
+    def on_train_batch_end(self, trainer, pl_module, *args) -> None:
+        if pl_module.stage == self.stage and trainer.global_step == self.step:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+
+def weights(path: Path) -> dict[str, torch.Tensor]:
+    return state(path, "net.")
+
+
+def assert_close(a: dict, b: dict, what: str) -> None:
+    assert a.keys() == b.keys() and a
+    for k in a:
+        assert torch.allclose(a[k].float(), b[k].float(), rtol=1e-5, atol=1e-6), f"{what}: {k} differs"
+
+
+def test_sigterm_saves_and_resume_equals_uninterrupted_run(tmp_path, data_overrides):
+    """Fault injection: SIGTERM at random steps, three times, resuming each time: every stopped
+    attempt raises TrainingStopped (exit status 143) with last.ckpt at the step reached, and the
+    end matches an uninterrupted run's weights (stages coarse -> refine, epochs of 3 batches)."""
+    base = tiny_overrides(data_overrides, 7, "stage.schedule=[coarse,refine]", "trainer.val_check_interval=3")
+    whole = train(compose_train(base), tmp_path / "whole")
+
+    run = tmp_path / "stopped"
+    rng = random.Random(17)
+    s1, s2 = sorted(rng.sample(range(1, 7), 2))
+    stops = [("coarse", s1), ("coarse", s2), ("refine", rng.randrange(1, 7))]
+    for attempt, (stage, step) in enumerate(stops):
+        cfg = compose_train([*base, *([f"ckpt_path={run}"] if attempt else [])])  # a folder: its latest checkpoint
+        OmegaConf.set_struct(cfg, False)
+        cfg.callbacks.terminator = {"_target_": f"{__name__}.TermAtStep", "stage": stage, "step": step}
+        with pytest.raises(TrainingStopped) as stopped:
+            train(cfg, run)
+        assert stopped.value.code == 128 + signal.SIGTERM
+        assert stopped.value.checkpoint == run / stage / "checkpoints" / "last.ckpt"
+        assert load_checkpoint(stopped.value.checkpoint)["global_step"] == step
+    resumed = train(compose_train([*base, f"ckpt_path={run}"]), run)
+    for stage in ("coarse", "refine"):
+        assert_close(weights(whole.checkpoint(stage, "final")), weights(run / stage / "checkpoints" / "final.ckpt"),
+                     f"{stage} after stops at {stops}")
+    # Best-checkpoint tracking survived the resumes: the best score is the best of all validations.
+    with open(run / "refine" / "csv" / "metrics.csv") as f:
+        ious = [float(r["val/iou"]) for r in csv.DictReader(f) if r.get("val/iou")]
+    assert resumed.stages[-1].best_val_iou == pytest.approx(max(ious))
+    steps = [int(float(r["step"])) for r in csv.DictReader(open(run / "coarse" / "csv" / "metrics.csv"))]
+    assert steps == sorted(steps)  # one metrics file, each step once in order
+    assert not list((run / "coarse" / "csv").glob("metrics.*.csv"))
+
+
+def test_resume_config_keeps_the_run_and_names_what_may_not_change(data_overrides):
+    saved = compose_train(tiny_overrides(data_overrides, 5))
+    again = compose_train(tiny_overrides(data_overrides, 2))  # the defaults of a new command differ
+    merged, changes = resume_config(saved, again, ["ckpt_path=x.ckpt"])
+    assert merged.stage.coarse.max_steps == 5 and changes == []
+    longer = compose_train(tiny_overrides(data_overrides, 5, "stage.coarse.max_steps=9", "trainer.accelerator=cpu"))
+    merged, changes = resume_config(saved, longer, ["stage.coarse.max_steps=9", "trainer.accelerator=cpu"])
+    assert merged.stage.coarse.max_steps == 9 and merged.stage.refine.max_steps == 5
+    assert any(c.startswith("stage.coarse.max_steps: 5 -> 9") for c in changes)
+    with pytest.raises(ValueError, match="model"):
+        resume_config(saved, compose_train(tiny_overrides(data_overrides, 5, "model=small")), ["model=small"])
+    with pytest.raises(ValueError, match="loss.weights.eikonal"):
+        resume_config(saved, compose_train(tiny_overrides(data_overrides, 5, "loss.weights.eikonal=0.5")),
+                      ["loss.weights.eikonal=0.5"])
+
+
+def test_run_folder_and_latest_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    (run / "coarse" / "checkpoints").mkdir(parents=True)
+    ckpt = run / "coarse" / "checkpoints" / "last.ckpt"
+    ckpt.write_bytes(b"x")
+    assert run_folder_of(ckpt) is None  # no config.yaml: not a run folder
+    (run / "config.yaml").write_text("seed: 0\n")
+    assert run_folder_of(ckpt) == run.resolve()
+    assert latest_checkpoint(run, ["coarse", "refine"]) == ckpt
+    final = run / "coarse" / "checkpoints" / "final.ckpt"
+    final.write_bytes(b"y")
+    os.utime(ckpt, ns=(1, 1))
+    assert latest_checkpoint(run, ["coarse", "refine"]) == final
+    assert resume_arguments([f"ckpt_path={ckpt}"]) == [f"hydra.run.dir='{run.resolve()}'", "hydra.output_subdir=null"]
+    assert resume_arguments([f"ckpt_path={run}"])[0] == f"hydra.run.dir='{run.resolve()}'"
+    assert resume_arguments([f"ckpt_path={ckpt}", "hydra.run.dir=elsewhere"]) == []
+    assert resume_arguments(["-m", f"ckpt_path={ckpt}"]) == []
+
+
+@pytest.mark.parametrize("steps", ["-1", "0", "abc"])
+def test_step_budget_must_be_positive(tmp_path, data_overrides, steps):
+    cfg = compose_train(tiny_overrides(data_overrides, 2, f"stage.coarse.max_steps={steps}"))
+    with pytest.raises(ValueError, match=r"stage.coarse.max_steps must be an integer >= 1"):
+        train(cfg, tmp_path / "run")
+
+
+def test_stale_temporaries_are_removed(tmp_path, data_overrides):
+    run = tmp_path / "run"
+    left = run / "coarse" / "checkpoints" / ".last.ckpt.0123456789abcdef.tmp"  # the checkpoint writer's
+    left.parent.mkdir(parents=True)
+    left.write_bytes(b"half a checkpoint")
+    left_too = run / ".config.yaml.ab_12xyz.tmp"  # mkstemp's (mvr.outputs.atomic_write)
+    left_too.write_text("half")
+    keep = run / "notes.tmp"  # not an atomic writer's name
+    keep.write_text("mine")
+    train(compose_train(tiny_overrides(data_overrides, 1, "stage=coarse")), run)
+    assert not left.exists() and not left_too.exists() and keep.exists()
+
+
+def _train_command(overrides: list[str]) -> list[str]:
+    return [sys.executable, str(REPO / "train.py"), *overrides]
+
+
+@pytest.mark.slow
+def test_command_line_sigterm_exits_nonzero_and_resumes_in_place(tmp_path, data_overrides):
+    """train.py killed with SIGTERM at random moments exits 143 each time; resuming with the README's
+    command continues in the same folder, with its config, and ends where an uninterrupted run ends."""
+    base = tiny_overrides(data_overrides, 30, "stage=coarse", "callbacks.image_logger=null")
+    whole = tmp_path / "whole"
+    done = subprocess.run(_train_command([*base, f"hydra.run.dir={whole}"]), cwd=REPO, capture_output=True,
+                          text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    run = tmp_path / "run"
+    first = [*base, f"hydra.run.dir={run}"]
+    rng = random.Random(3)
+    last = run / "coarse" / "checkpoints" / "last.ckpt"
+    for attempt in range(3):
+        cmd = _train_command(first if attempt == 0 else [f"ckpt_path={run}", "trainer.enable_progress_bar=false"])
+        proc = subprocess.Popen(cmd, cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        reached = load_checkpoint(last)["global_step"] if last.is_file() else 0
+        deadline = time.time() + 300
+        while time.time() < deadline and not (last.is_file() and load_checkpoint(last)["global_step"] > reached):
+            time.sleep(0.2)
+        time.sleep(rng.uniform(0, 0.3))
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=300)
+        assert proc.returncode == 143, err[-2000:]
+        assert "stopped by SIGTERM" in err
+    resumed = subprocess.run(_train_command([f"ckpt_path={last}"]), cwd=tmp_path, capture_output=True, text=True,
+                             timeout=600)
+    assert resumed.returncode == 0, resumed.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "whole"]  # nothing written elsewhere
+    assert OmegaConf.load(run / "config.yaml").stage.coarse.max_steps == 30
+    assert_close(weights(whole / "coarse" / "checkpoints" / "final.ckpt"),
+                 weights(run / "coarse" / "checkpoints" / "final.ckpt"), "command-line resume")
