@@ -1,0 +1,54 @@
+"""Worker processes that die with their parent.
+
+A ``ProcessPoolExecutor``'s workers outlive a parent killed by SIGTERM or SIGKILL: they wait on
+their call queue forever (seen: evaluation workers of ~285 MB each left running). ``process_pool``
+gives each worker two guards: on Linux the kernel sends it SIGKILL when the parent dies
+(``prctl(PR_SET_PDEATHSIG)``), and everywhere a daemon thread ends it once its parent is gone
+(its parent process id changes), checked every ``PARENT_POLL_S`` seconds.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+from concurrent.futures import ProcessPoolExecutor
+
+PARENT_POLL_S = 1.0
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def die_with_parent(parent_pid: int) -> None:
+    """Makes this process end when ``parent_pid`` (its parent) ends; a pool's worker initializer.
+
+    Safe to call where prctl does not exist (the watchdog thread still runs).
+    """
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL))
+        except (OSError, AttributeError):
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the guard was set
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            threading.Event().wait(PARENT_POLL_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="die-with-parent", daemon=True).start()
+
+
+def process_pool(workers: int) -> ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes (no fork of a parent holding threads and CUDA) that
+    die with this process (``die_with_parent``)."""
+    import multiprocessing
+
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=die_with_parent, initargs=(os.getpid(),))
+
+
+__all__ = ["process_pool", "die_with_parent", "PARENT_POLL_S"]

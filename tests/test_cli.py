@@ -1,0 +1,193 @@
+"""sdfcommon.cli: one error handling for every hydra entry point, no leftovers of a failed run,
+config getters that name the key; sdfcommon below svr and mvr."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from omegaconf import OmegaConf
+
+from sdfcommon.cli import (USAGE_ERROR, config_choice, config_float, config_int, config_ints, config_object,
+                           hydra_entry, user_message)
+from sdfcommon.serialization import load_torch, scrub_unsafe_advice
+
+from .entry_points import expect_usage_error, files_under, run_entry
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TOY_YAML = """\
+out: ???
+mode: ok
+hydra:
+  run:
+    dir: ${out}
+  job:
+    name: toy
+    chdir: false
+"""
+
+
+def toy_task(cfg):
+    """Fails as ``cfg.mode`` says, after writing what a run writes (settings, a result)."""
+    out = Path(cfg.out)
+    if cfg.mode == "results":
+        (out / "result.txt").write_text("partial")
+    if cfg.mode in ("user", "results"):
+        (out / "settings.json").write_text(json.dumps({"new": True}))
+        raise ValueError("the thing named in the message is wrong")
+    if cfg.mode == "bug":
+        raise RuntimeError("a bug")
+    if cfg.mode == "exit":
+        raise SystemExit(143)
+    if cfg.mode == "missing":
+        return cfg.nothing_here_but_missing
+    (out / "result.txt").write_text("done")
+    return 1.0
+
+
+@pytest.fixture
+def toy(tmp_path):
+    conf = tmp_path / "conf"
+    conf.mkdir()
+    (conf / "toy.yaml").write_text(TOY_YAML + "nothing_here_but_missing: ???\n")
+    return hydra_entry("toy-cmd", "toy", toy_task, conf)
+
+
+def test_sdfcommon_imports_neither_svr_nor_mvr():
+    code = ("import sys, sdfcommon, sdfcommon.cli, sdfcommon.checks, sdfcommon.serialization, sdfcommon.processes\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in ('svr', 'mvr')))")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+def test_a_users_mistake_is_one_line_with_status_2_and_leaves_nothing(toy, tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    line = expect_usage_error(toy, [f"out={run}", "mode=user"], monkeypatch, capsys, "toy-cmd")
+    assert line == "toy-cmd: error: the thing named in the message is wrong"
+    assert not run.exists()  # .hydra, toy.log, settings.json and the folder itself are gone
+    line = expect_usage_error(toy, [f"out={run}", "mode=missing"], monkeypatch, capsys, "toy-cmd")
+    assert "nothing_here_but_missing" in line and not run.exists()
+    # Folders made to hold a new run folder go too (as outputs/infer/ would), not the ones before.
+    expect_usage_error(toy, [f"out={tmp_path / 'outputs' / 'toy' / 'run'}", "mode=user"], monkeypatch, capsys)
+    assert not (tmp_path / "outputs").exists() and tmp_path.is_dir()
+
+
+def test_a_bug_keeps_its_traceback_and_system_exit_its_code(toy, tmp_path, monkeypatch, capsys):
+    with pytest.raises(SystemExit) as stop:
+        run_entry(toy, [f"out={tmp_path / 'bug'}", "mode=bug"], monkeypatch)
+    err = capsys.readouterr().err
+    assert stop.value.code == 1 and "RuntimeError: a bug" in err and "error: a bug" not in err
+    with pytest.raises(SystemExit) as stop:
+        run_entry(toy, [f"out={tmp_path / 'stopped'}", "mode=exit"], monkeypatch)
+    assert stop.value.code == 143
+    assert (tmp_path / "stopped" / ".hydra" / "config.yaml").is_file()  # a stopped run keeps its record
+
+
+def test_what_existed_before_is_never_removed_nor_rewritten(toy, tmp_path, monkeypatch, capsys):
+    run = tmp_path / "existing"
+    (run / ".hydra").mkdir(parents=True)
+    (run / ".hydra" / "config.yaml").write_text("out: old\nmode: ok\n")
+    (run / "settings.json").write_text('{"old": true}')
+    (run / "toy.log").write_text("an earlier run's line\n")
+    (run / "result.txt").write_text("earlier results")
+    before = files_under(run)
+    expect_usage_error(toy, [f"out={run}", "mode=user"], monkeypatch, capsys)
+    assert files_under(run) == before
+    # A run that succeeds rewrites its record and keeps no empty log it made.
+    run_entry(toy, [f"out={tmp_path / 'fine'}"], monkeypatch)
+    assert sorted(files_under(tmp_path / "fine")) == [".hydra/config.yaml", ".hydra/hydra.yaml",
+                                                      ".hydra/overrides.yaml", "result.txt"]
+
+
+def test_a_failed_run_that_wrote_results_keeps_them(toy, tmp_path, monkeypatch, capsys):
+    run = tmp_path / "partial"
+    expect_usage_error(toy, [f"out={run}", "mode=results"], monkeypatch, capsys)
+    assert (run / "result.txt").read_text() == "partial" and (run / ".hydra" / "config.yaml").is_file()
+
+
+def test_an_unwritable_run_folder_is_one_line(toy, tmp_path, monkeypatch, capsys):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    line = expect_usage_error(toy, [f"out={blocker / 'run'}"], monkeypatch, capsys)
+    assert str(blocker) in line and blocker.read_text() == "x"
+
+
+def test_getters_name_the_key():
+    cfg = OmegaConf.create({"batch_size": "abc", "n": -1, "lr": "fast", "split": "testing", "views": [0, 99],
+                            "flag": 1})
+    with pytest.raises(ValueError, match=r"^batch_size must be an integer >= 1, got 'abc'$"):
+        config_int(cfg, "batch_size", minimum=1)
+    with pytest.raises(ValueError, match=r"^n must be an integer >= 0, got -1$"):
+        config_int(cfg, "n", minimum=0)
+    with pytest.raises(ValueError, match=r"^lr must be a finite number >= 0, got 'fast'$"):
+        config_float(cfg, "lr", minimum=0)
+    with pytest.raises(ValueError, match=r"^split must be one of train, val, test, got 'testing'$"):
+        config_choice(cfg, "split", ("train", "val", "test"))
+    with pytest.raises(ValueError, match=r"^views\[1\] must be an integer in \[0, 23\], got 99$"):
+        config_ints(cfg, "views", 0, 23)
+    with pytest.raises(ValueError, match="flag must be one of True, False, got 1"):
+        config_choice(cfg, "flag", (True, False))
+    with pytest.raises(ValueError, match="absent is not set"):
+        config_int(cfg, "absent")
+
+
+@dataclass(frozen=True)
+class Toy:
+    lr: float = 0.1
+    steps: int = 3
+    sizes: tuple[int, ...] = (1, 2)
+
+    def __post_init__(self):
+        if not self.lr > 0:  # meets a string with "'>' not supported"
+            raise ValueError("lr must be positive")
+
+
+def test_config_object_checks_field_types_first():
+    target = f"{__name__}.Toy"
+    good = OmegaConf.create({"toy": {"_target_": target, "lr": 1, "sizes": [4]}})
+    assert config_object(good, "toy") == Toy(lr=1, sizes=[4])
+    for bad, message in (({"lr": "fast"}, "toy.lr must be a number, got 'fast'"),
+                         ({"steps": 2.5}, "toy.steps must be an integer, got 2.5"),
+                         ({"sizes": ["a"]}, "toy.sizes must be a list of (an integer), got ['a']")):
+        cfg = OmegaConf.create({"toy": {"_target_": target, **bad}})
+        with pytest.raises(TypeError) as err:
+            config_object(cfg, "toy")
+        assert str(err.value) == message
+
+
+def test_instantiation_errors_are_unwrapped_and_named_by_key():
+    from hydra.utils import instantiate
+
+    cfg = OmegaConf.create({"toy": {"_target_": f"{__name__}.Toy", "lr": -1.0}})
+    with pytest.raises(Exception) as err:
+        instantiate(cfg.toy)
+    assert user_message(err.value) == "toy: lr must be positive"
+    cfg = OmegaConf.create({"toy": {"_target_": "no.such.Thing"}})
+    with pytest.raises(Exception) as err:
+        instantiate(cfg.toy)
+    assert "no.such.Thing" in user_message(err.value) and "\n" not in user_message(err.value)
+    assert user_message(RuntimeError("a bug")) is None
+    assert user_message(FileNotFoundError(2, "No such file or directory", "/x/y.ckpt")) == \
+        "/x/y.ckpt: No such file or directory"
+
+
+def test_random_bytes_never_get_the_advice_to_load_unsafely(tmp_path):
+    junk = tmp_path / "random.ckpt"
+    junk.write_bytes(np.random.default_rng(0).bytes(300))
+    with pytest.raises(Exception) as raw:
+        torch.load(junk, weights_only=True)
+    assert "weights_only" in str(raw.value)  # what torch itself says
+    with pytest.raises(ValueError) as ours:
+        load_torch(junk)
+    assert "random.ckpt" in str(ours.value) and "weights_only" not in str(ours.value)
+    assert "\n" not in str(ours.value)
+    wrapped = f"x.ckpt: not a readable checkpoint (UnpicklingError: {raw.value})"
+    assert "weights_only" not in scrub_unsafe_advice(wrapped) and scrub_unsafe_advice(wrapped).endswith(")")
+    assert USAGE_ERROR == 2
