@@ -18,7 +18,13 @@ Per input image ``<stem>`` it writes into ``output_dir`` (each file atomically):
 
 Inputs are RGBA (alpha = the object's silhouette), or RGB/grey with a mask file (``masks=[...]``, or
 ``<stem>_mask.png`` beside the image). Images are read like the dataset's (``svr.data.nmr.
-images_to_float``: RGB on white) and resized to the network's 64^2 with a warning.
+images_to_float``: RGB on white) and resized to the network's 64^2 with a warning. A silhouette that
+cannot be an object on a background is refused (``check_silhouette``): a fully transparent image,
+or an inverted mask (opaque along the whole border).
+
+The output folder is ``output_dir`` (hydra's run folder and its ``.hydra/`` record go there too;
+nothing is made in the working directory), else ``outputs/infer/<time>``. A mistake in the settings
+or files is one line ``sdfdiff-infer: error: ...`` with exit status 2 (``sdfcommon.cli``).
 
 Python API (in-memory tensors)::
 
@@ -31,7 +37,6 @@ from __future__ import annotations
 
 import logging
 import os
-import sys
 import tempfile
 import warnings
 from dataclasses import dataclass
@@ -42,8 +47,11 @@ import numpy as np
 import torch
 
 import renderer
+from sdfcommon.checks import check_int
+from sdfcommon.cli import config_bool, config_int, config_ints, config_value, hydra_entry
+from sdfcommon.serialization import scrub_unsafe_advice
 
-from .data.nmr import images_to_float
+from .data.nmr import NUM_VIEWS, images_to_float
 from .models.network import SVRNet, SVRPrediction
 
 log = logging.getLogger(__name__)
@@ -174,7 +182,7 @@ def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "au
     except FileNotFoundError as err:
         raise FileNotFoundError(f"ckpt_path: {err}") from None
     except ValueError as err:
-        raise ValueError(f"ckpt_path: {err}") from None
+        raise ValueError(f"ckpt_path: {scrub_unsafe_advice(str(err))}") from None
     cats = meta.get("categories")
     return LoadedModel(net=net, stage=str(meta["stage"]), checkpoint=path,
                        categories=tuple((str(c), str(n)) for c, n in cats) if cats else None)
@@ -231,8 +239,7 @@ def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
         on the model's device, over the box ``[-half_side, half_side]^3`` (world units).
     """
     m = as_model(model)
-    if isinstance(batch_size, bool) or not isinstance(batch_size, int) or batch_size < 1:
-        raise ValueError(f"batch_size must be a positive int, got {batch_size!r}")
+    check_int(batch_size, "batch_size", minimum=1)
     x = check_images(images, m.image_size)
     use_refiner = m.uses_refiner if refine is None else bool(refine)
     m.net.eval()
@@ -278,9 +285,34 @@ def _open_image(path: Path, what: str):
     try:
         img = Image.open(path)
         img.load()
+    except Image.DecompressionBombError:
+        raise ValueError(f"{path}: the {what} is too large to read safely (more than twice PIL's "
+                         f"Image.MAX_IMAGE_PIXELS = {Image.MAX_IMAGE_PIXELS} pixels); shrink it first") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
         raise ValueError(f"{path}: cannot read the {what} ({err})") from None
     return img
+
+
+def check_silhouette(alpha: np.ndarray, name: str) -> None:
+    """Refuses a silhouette that cannot be an object on a background: empty (no pixel opaque: a
+    fully transparent image or a black mask) or covering the image's whole border (an inverted
+    mask: object transparent, background opaque; an object of the benchmark's framing never
+    touches all four edges). Opaque: alpha >= 128 of 255.
+
+    Args:
+        alpha: (H, W) uint8 alpha channel or mask (255 = object).
+    Raises:
+        ValueError naming ``name`` and saying which.
+    """
+    opaque = np.asarray(alpha) >= 128
+    if not opaque.any():
+        raise ValueError(f"{name}: the silhouette is empty (no opaque pixel: a fully transparent image or a "
+                         f"black mask); the object must be opaque (alpha or mask white) on a transparent background")
+    border = np.concatenate([opaque[0], opaque[-1], opaque[:, 0], opaque[:, -1]])
+    if border.all():
+        raise ValueError(f"{name}: the silhouette covers the whole image border, so the mask looks inverted "
+                         f"(object transparent, background opaque); the object must be opaque (alpha or mask "
+                         f"white) and the background transparent (black in a mask)")
 
 
 def _has_alpha(img) -> bool:
@@ -295,6 +327,9 @@ def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int 
     image is padded to a square (transparent, white); any other size is resized to
     ``image_size`` (area averaging when shrinking), with a warning. The result is converted like the
     datasets' images (``svr.data.nmr.images_to_float``: RGB on white).
+
+    The silhouette must be an object on a background (``check_silhouette``): a fully transparent
+    image or an inverted mask is refused.
 
     Returns:
         (4, S, S) float32 RGBA in [0, 1].
@@ -317,6 +352,7 @@ def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int 
     else:
         raise ValueError(f"{path}: the image has no alpha channel ({img.mode}); give an RGBA image or a mask "
                          f"file (masks=[...], or <stem>_mask.png beside it)")
+    check_silhouette(np.asarray(rgba.getchannel("A")), str(mask if mask is not None else path))
     w, h = rgba.size
     if (w, h) != (image_size, image_size):
         warnings.warn(f"{path}: {w}x{h} image resized to {image_size}x{image_size}"
@@ -396,6 +432,22 @@ class Reconstruction:
     views: tuple[int, ...]
 
 
+def check_view_ids(views: Optional[Sequence[int]], name: str = "views", allow_empty: bool = True) -> tuple[int, ...]:
+    """NMR view indices: distinct ints in [0, NUM_VIEWS) (the dataset's 24 views).
+
+    Raises:
+        ValueError naming ``name``.
+    """
+    if views is None or isinstance(views, (str, bytes)) or not isinstance(views, Sequence):
+        raise ValueError(f"{name} must be a list of NMR view indices in [0, {NUM_VIEWS}), got {views!r}")
+    out = tuple(check_int(v, f"{name}[{i}]", 0, NUM_VIEWS - 1) for i, v in enumerate(views))
+    if not out and not allow_empty:
+        raise ValueError(f"{name} must hold at least one NMR view index in [0, {NUM_VIEWS})")
+    if len(set(out)) != len(out):
+        raise ValueError(f"{name} must not repeat a view, got {list(views)!r}")
+    return out
+
+
 @torch.no_grad()
 def render_views(grid: renderer.SDFGrid, views: Sequence[int] = DEFAULT_VIEWS, image_size: int = 128,
                  backend: str = "auto") -> torch.Tensor:
@@ -404,9 +456,8 @@ def render_views(grid: renderer.SDFGrid, views: Sequence[int] = DEFAULT_VIEWS, i
     Returns:
         (B, K, S, S, 3) float32 CPU in [0, 1].
     """
-    views = [int(v) for v in views]
-    if not views:
-        raise ValueError("views must hold at least one NMR view index")
+    views = list(check_view_ids(views, allow_empty=False))
+    check_int(image_size, "image_size", minimum=1)
     b = grid.batch_size
     cams = renderer.Cameras.nmr(views * b, image_size=image_size, dtype=grid.dtype, device=grid.device)
     out = renderer.render(grid, cams, PREVIEW_SCENE, backend=backend)
@@ -431,6 +482,8 @@ def reconstruct(model: ModelLike, images: torch.Tensor, views: Sequence[int] = D
     """
     from .geometry import sdf_to_mesh
 
+    views = check_view_ids(views)
+    check_int(render_size, "render_size", minimum=1)
     m = as_model(model)
     grid = predict(m, images, batch_size)
     names = list(names) if names is not None else [f"image {b}" for b in range(grid.batch_size)]
@@ -502,9 +555,7 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
     """
     from mvr.outputs import write_mesh, write_npz, write_png
 
-    bad = [f for f in formats if f not in OUTPUT_FORMATS]
-    if bad:
-        raise ValueError(f"formats must be among {OUTPUT_FORMATS}, got {list(formats)}")
+    check_formats(formats)
     folder = Path(out_dir)
     written: dict[str, Path] = {}
     if "npz" in formats:
@@ -519,6 +570,13 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
     if "png" in formats:
         written["png"] = write_png(folder / f"{name}_views.png", preview_picture(input_image, rec.renders))
     return written
+
+
+def check_formats(formats: Sequence[str]) -> list[str]:
+    """Raises ValueError naming ``formats`` unless it is a list of ``OUTPUT_FORMATS``."""
+    if isinstance(formats, str) or not isinstance(formats, Sequence) or any(f not in OUTPUT_FORMATS for f in formats):
+        raise ValueError(f"formats must be a list among {list(OUTPUT_FORMATS)}, got {formats!r}")
+    return list(formats)
 
 
 def _unique_names(paths: Sequence[Path]) -> list[str]:
@@ -550,6 +608,11 @@ def infer_files(model: ModelLike, images: Union[PathLike, Sequence[PathLike]], o
     """
     from tqdm.auto import tqdm
 
+    # Every setting is checked before the first image is read (a bad one must not cost a model run).
+    check_int(batch_size, "batch_size", minimum=1)
+    check_int(render_size, "render_size", minimum=1)
+    views = check_view_ids(views)
+    check_formats(formats)
     folder = ensure_output_dir(output_dir, "output_dir")
     paths = find_images(images, mask_suffix)
     if masks is not None and len(masks) != len(paths):
@@ -578,50 +641,32 @@ def infer_files(model: ModelLike, images: Union[PathLike, Sequence[PathLike]], o
 # ------------------------------------------------------------------------------------------------
 # Entry point
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[1] / "configs")
-
-
-def _plain(value):
-    from omegaconf import OmegaConf
-
-    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
-
-
 def run(cfg) -> list[dict[str, Path]]:
-    """The body of ``main``: a composed configs/infer.yaml -> ``infer_files``; prints what it wrote."""
+    """The body of ``main``: a composed configs/infer.yaml -> ``infer_files``; prints what it wrote.
+
+    The output folder is ``output_dir``, else hydra's run folder (infer.yaml makes them one).
+    """
     from hydra.core.hydra_config import HydraConfig
 
-    out = cfg.get("output_dir") or HydraConfig.get().runtime.output_dir
+    settings = dict(masks=config_value(cfg, "masks"), mask_suffix=str(config_value(cfg, "mask_suffix") or ""),
+                    views=check_view_ids(config_ints(cfg, "views")),
+                    render_size=config_int(cfg, "render_size", minimum=1),
+                    batch_size=config_int(cfg, "batch_size", minimum=1),
+                    formats=check_formats(config_value(cfg, "formats")),
+                    require_watertight=config_bool(cfg, "require_watertight"),
+                    backend=str(config_value(cfg, "backend")), progress=config_bool(cfg, "progress"))
+    out = config_value(cfg, "output_dir") or HydraConfig.get().runtime.output_dir
     folder = ensure_output_dir(out, "output_dir")
-    model = load_model(cfg.ckpt_path, cfg.get("device", "auto"))
+    model = load_model(config_value(cfg, "ckpt_path"), config_value(cfg, "device"))
     print(f"checkpoint {model.checkpoint} ({model.stage} stage, {model.output_name} output) on {model.device}")
-    results = infer_files(model, _plain(cfg.images), folder, masks=_plain(cfg.get("masks")),
-                          mask_suffix=str(cfg.get("mask_suffix", "_mask") or ""),
-                          views=[int(v) for v in _plain(cfg.get("views", list(DEFAULT_VIEWS))) or []],
-                          render_size=int(cfg.get("render_size", 128)), batch_size=int(cfg.get("batch_size", 16)),
-                          formats=list(_plain(cfg.get("formats", list(OUTPUT_FORMATS)))),
-                          require_watertight=bool(cfg.get("require_watertight", False)),
-                          backend=str(cfg.get("backend", "auto")), progress=bool(cfg.get("progress", True)))
+    results = infer_files(model, config_value(cfg, "images"), folder, **settings)
     for files in results:
         print("wrote " + ", ".join(str(p) for p in files.values()))
     print(f"{len(results)} image(s) -> {folder}")
     return results
 
 
-def main() -> None:
-    """``python -m svr.infer`` / ``sdfdiff-infer``: hydra reads configs/infer.yaml and the overrides."""
-    import hydra
-    from hydra.errors import InstantiationException
-    from omegaconf.errors import MissingMandatoryValue
-
-    @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="infer")
-    def _main(cfg) -> None:
-        try:
-            run(cfg)
-        except (ValueError, FileNotFoundError, OSError, MissingMandatoryValue, InstantiationException) as err:
-            sys.exit(f"sdfdiff-infer: error: {err}")
-
-    _main()
+main = hydra_entry("sdfdiff-infer", "infer", run)
 
 
 if __name__ == "__main__":
@@ -630,5 +675,6 @@ if __name__ == "__main__":
 
 __all__ = ["LoadedModel", "Reconstruction", "load_model", "as_model", "resolve_device", "check_images",
            "predict_sdf", "predict", "load_image", "find_images", "find_mask", "render_views", "reconstruct",
-           "preview_picture", "save_reconstruction", "infer_files", "ensure_output_dir",
+           "preview_picture", "save_reconstruction", "infer_files", "ensure_output_dir", "check_view_ids",
+           "check_silhouette", "check_formats", "run", "main",
            "DEFAULT_VIEWS", "OUTPUT_FORMATS", "PREVIEW_SCENE"]

@@ -2,7 +2,12 @@
 1) as a watertight mesh; the in-memory API; RGB + mask and resizing; CPU/GPU checkpoints; errors."""
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,7 +22,10 @@ from svr.infer import (check_images, infer_files, load_image, load_model, main, 
                        reconstruct, resolve_device)
 from svr.metrics import voxel_iou
 
+from ..entry_points import expect_usage_error, run_entry
 from .test_evaluate import run_main, tiny_run  # noqa: F401  (the shared tiny training run)
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def save_rgba(u8: np.ndarray, path) -> None:
@@ -108,7 +116,7 @@ def test_rgb_plus_mask_equals_rgba_and_other_sizes_are_resized(tiny_run, tmp_pat
     assert len(files) == 3 and not (out / "b_mask_sdf.npz").exists()
 
 
-def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch):
+def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch, capsys):
     junk = tmp_path / "junk.ckpt"
     junk.write_bytes(b"\x80\x02 not a checkpoint")
     with pytest.raises(ValueError, match="junk.ckpt"):
@@ -138,12 +146,10 @@ def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch):
     blocker.write_text("x")
     with pytest.raises(ValueError, match="output_dir"):
         infer_files(tiny_run.checkpoint, [bad], blocker / "sub")
-    with pytest.raises(SystemExit, match="bad.png"):
-        run_main(main, [f"ckpt_path={tiny_run.checkpoint}", f"images=[{bad}]", f"output_dir={tmp_path / 'o2'}"],
-                 tmp_path / "h1", monkeypatch)
-    with pytest.raises(SystemExit, match="junk.ckpt"):
-        run_main(main, [f"ckpt_path={junk}", f"images=[{bad}]", f"output_dir={tmp_path / 'o3'}"],
-                 tmp_path / "h2", monkeypatch)
+    assert "bad.png" in expect_usage_error(main, [f"ckpt_path={tiny_run.checkpoint}", f"images=[{bad}]",
+                                                  f"output_dir={tmp_path / 'o2'}"], monkeypatch, capsys, "sdfdiff-infer")
+    assert "junk.ckpt" in expect_usage_error(main, [f"ckpt_path={junk}", f"images=[{bad}]",
+                                                    f"output_dir={tmp_path / 'o3'}"], monkeypatch, capsys)
     if not torch.cuda.is_available():
         with pytest.raises(ValueError, match="device"):
             resolve_device("cuda")
@@ -178,3 +184,112 @@ def test_a_checkpoint_cannot_name_arbitrary_callables(tiny_run, tmp_path):
     torch.save(ckpt, crafted)
     with pytest.raises(ValueError, match="crafted.ckpt.*os.system"):
         load_model(crafted, "cpu")
+
+
+def rgba_disc(path, inverted: bool = False, size: int = 64) -> Path:
+    """An RGBA PNG of a grey disc on a transparent background (``inverted``: the disc transparent,
+    the background opaque)."""
+    yy, xx = np.mgrid[:size, :size]
+    disc = (yy - size / 2) ** 2 + (xx - size / 2) ** 2 < (size / 4) ** 2
+    u8 = np.full((4, size, size), 128, np.uint8)
+    u8[3] = np.where(disc != inverted, 255, 0)
+    save_rgba(u8, path)
+    return path
+
+
+def test_command_line_refuses_bad_settings_naming_the_key(tiny_run, tmp_path, monkeypatch, capsys):
+    """Issue 17 items 9 and 10: each refusal is one line naming the setting, exit status 2."""
+    image = rgba_disc(tmp_path / "disc.png")
+    base = [f"ckpt_path={tiny_run.checkpoint}", f"images={image}", "device=cpu", "progress=false"]
+    cases = {"batch_size=abc": "batch_size must be an integer >= 1, got 'abc'",
+             "batch_size=-1": "batch_size must be an integer >= 1, got -1",
+             "batch_size=0": "batch_size must be an integer >= 1, got 0",
+             "render_size=0": "render_size must be an integer >= 1, got 0",
+             "views=[99]": "views[0] must be an integer in [0, 23], got 99",
+             "views=[3,3]": "views must not repeat"}
+    for k, (override, message) in enumerate(cases.items()):
+        out = tmp_path / f"out{k}"
+        line = expect_usage_error(main, [*base, f"output_dir={out}", override], monkeypatch, capsys, "sdfdiff-infer")
+        assert message in line, (override, line)
+        assert not out.exists()  # the refused run left nothing behind
+    # A random-bytes checkpoint: torch's advice to load with weights_only=False is never passed on.
+    junk = tmp_path / "random.ckpt"
+    junk.write_bytes(np.random.default_rng(0).bytes(300))
+    line = expect_usage_error(main, [*base[1:], f"ckpt_path={junk}", f"output_dir={tmp_path / 'o'}"],
+                              monkeypatch, capsys)
+    assert "random.ckpt" in line and "weights_only" not in line
+    with pytest.raises(ValueError) as err:
+        load_model(junk, "cpu")
+    assert "weights_only" not in str(err.value)
+    # The Python API refuses them too (batch_size=-1 used to write nothing and report success).
+    for kwargs in ({"batch_size": -1}, {"batch_size": 0}, {"render_size": 0}, {"views": [99]}):
+        with pytest.raises(ValueError, match=next(iter(kwargs))):
+            infer_files(tiny_run.checkpoint, [image], tmp_path / "api", **kwargs)
+
+
+def test_an_image_above_the_decompression_bomb_limit_is_one_line(tiny_run, tmp_path, monkeypatch, capsys):
+    image = rgba_disc(tmp_path / "huge.png")
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 1000)  # 64 x 64 > 2 x 1000: PIL refuses to decode it
+    line = expect_usage_error(main, [f"ckpt_path={tiny_run.checkpoint}", f"images={image}", "device=cpu",
+                                     f"output_dir={tmp_path / 'out'}", "progress=false"], monkeypatch, capsys)
+    assert "huge.png" in line and "too large" in line
+
+
+def test_a_transparent_image_or_an_inverted_mask_is_refused(tiny_run, tmp_path, monkeypatch, capsys):
+    """Issue 17 item 12: refused (not reconstructed as a blob), with a message saying which."""
+    clear = tmp_path / "clear.png"
+    Image.new("RGBA", (64, 64), (200, 100, 50, 0)).save(clear)
+    with pytest.raises(ValueError, match="clear.png.*silhouette is empty"):
+        load_image(clear)
+    with pytest.raises(ValueError, match="inverted.png.*inverted"):
+        load_image(rgba_disc(tmp_path / "inverted.png", inverted=True))
+    # An RGB photo with a mask drawn the wrong way round (object black, background white).
+    Image.new("RGB", (64, 64), "grey").save(tmp_path / "photo.png")
+    mask = np.full((64, 64), 255, np.uint8)
+    mask[20:44, 20:44] = 0
+    Image.fromarray(mask, "L").save(tmp_path / "photo_mask.png")
+    with pytest.raises(ValueError, match="photo_mask.png.*inverted"):
+        load_image(tmp_path / "photo.png", tmp_path / "photo_mask.png")
+    line = expect_usage_error(main, [f"ckpt_path={tiny_run.checkpoint}", f"images={clear}", "device=cpu",
+                                     f"output_dir={tmp_path / 'out'}", "progress=false"], monkeypatch, capsys)
+    assert "silhouette is empty" in line
+    assert load_image(rgba_disc(tmp_path / "fine.png")).shape == (4, 64, 64)
+
+
+def test_output_dir_is_the_run_folder(tiny_run, tmp_path, monkeypatch, capsys):
+    """Issue 17 item 13: with output_dir given, nothing is made in the working directory."""
+    image = rgba_disc(tmp_path / "disc.png")
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    out = tmp_path / "out"
+    run_entry(main, [f"ckpt_path={tiny_run.checkpoint}", f"images={image}", "device=cpu", f"output_dir={out}",
+                     "views=[]", "formats=[npz]", "progress=false"], monkeypatch)
+    assert list(cwd.iterdir()) == []
+    assert (out / "disc_sdf.npz").is_file() and (out / ".hydra" / "config.yaml").is_file()
+    assert not list(out.glob("*.log"))  # hydra's empty log file is not left in the user's folder
+
+
+def test_inference_from_a_read_only_working_directory(tiny_run, tmp_path):
+    """Issue 17 item 13: a read-only working directory and a writable output_dir work. As root,
+    to whom permission bits mean nothing, the command runs without the capabilities that override
+    them."""
+    image = rgba_disc(tmp_path / "disc.png")
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    cwd.chmod(0o555)
+    prefix = []
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("running as root without setpriv: cannot make a folder read-only")
+        prefix = ["setpriv", "--bounding-set=-dac_override,-dac_read_search", "--"]
+    try:
+        proc = subprocess.run([*prefix, sys.executable, "-m", "svr.infer", f"ckpt_path={tiny_run.checkpoint}",
+                               f"images={image}", f"output_dir={tmp_path / 'out'}", "device=cpu", "views=[]",
+                               "formats=[npz]", "progress=false"],
+                              cwd=cwd, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                              timeout=300)
+    finally:
+        cwd.chmod(0o755)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert (tmp_path / "out" / "disc_sdf.npz").is_file() and list(cwd.iterdir()) == []
