@@ -14,7 +14,10 @@ its images, the reported mean the unweighted mean over the categories.
 It prints the table (categories as columns, mean last; for NMR ShapeNet with the paper's reference
 rows) and writes into ``output_dir`` (each file atomically): ``table.md``, ``table.csv``,
 ``iou.json`` (``{"split", "categories": {name: iou}, "mean", ...}``), ``per_object.csv`` (worst
-objects first) and ``per_image.csv``.
+objects first) and ``per_image.csv``. ``output_dir`` is also hydra's run folder (nothing is made in
+the working directory); without it, ``outputs/eval/<time>``. A mistake in the settings or files is
+one line ``sdfdiff-evaluate: error: ...`` with exit status 2 (``sdfcommon.cli``). The
+``protocol_workers`` processes die with the command, however it is stopped.
 
 Python API (reused by drivers such as a demo, so there is one implementation of the table)::
 
@@ -50,9 +53,13 @@ from typing import Any, Mapping, Optional, Sequence, Union
 import numpy as np
 import torch
 
+from sdfcommon.checks import check_int
+from sdfcommon.cli import config_bool, config_choice, config_float, config_int, config_ints, config_value, hydra_entry
+from sdfcommon.processes import process_pool
+
 from .data.nmr import NMR_CATEGORIES, NUM_VIEWS, SPLITS
 from .distributed import RankInfo, barrier, gather_uneven, local_rank, process_group_from_environment
-from .infer import ModelLike, as_model, ensure_output_dir, predict_sdf
+from .infer import ModelLike, as_model, check_view_ids, ensure_output_dir, predict_sdf
 from .metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table, voxel_iou, voxels_protocol
 
 log = logging.getLogger(__name__)
@@ -256,12 +263,6 @@ def _protocol_voxels(values: np.ndarray, half_side: float) -> np.ndarray:
     return voxels_protocol(torch.from_numpy(values), -half_side, half_side).numpy()
 
 
-def _check_int(value, name: str, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
-    return value
-
-
 def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, str]], split: str,
                      dataset: str = "", views: Optional[Sequence[int]] = None,
                      max_objects_per_category: Optional[int] = None, batch_size: int = 32, num_workers: int = 0,
@@ -280,7 +281,8 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
             the protocol); a thinned run is marked ``full_protocol=False``.
         batch_size: images per forward pass; num_workers: DataLoader workers.
         compare_coarse: also score the coarse SDF (the refiner's gain).
-        protocol_workers: processes for the CPU-bound mesh voxelisation (0: in this process).
+        protocol_workers: processes for the CPU-bound mesh voxelisation (0: in this process); they
+            die with this process (``sdfcommon.processes.process_pool``), killed or not.
         keep_voxels: keep every predicted voxel grid in the result (32 KiB per image).
         progress: a tqdm progress bar over the images.
         distributed: share the images among the ranks of the initialised default process group
@@ -300,9 +302,9 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
     from .data.datamodule import EvalShardSampler, EvalViews
     from .data.types import collate_batch
 
-    _check_int(batch_size, "batch_size", 1)
-    _check_int(num_workers, "num_workers", 0)
-    _check_int(protocol_workers, "protocol_workers", 0)
+    check_int(batch_size, "batch_size", 1)
+    check_int(num_workers, "num_workers", 0)
+    check_int(protocol_workers, "protocol_workers", 0)
     m = as_model(model)
     categories = tuple((str(c), str(n)) for c, n in categories)
     items = EvalViews(objects, views, max_objects_per_category)
@@ -317,12 +319,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
     shard = EvalShardSampler(len(items), pad=False, rank=ranks.rank, world_size=ranks.world_size)
     loader = DataLoader(items, batch_size=batch_size, sampler=shard, num_workers=num_workers,
                         collate_fn=collate_batch, pin_memory=m.device.type == "cuda")
-    pool = None
-    if protocol_workers > 0:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor
-
-        pool = ProcessPoolExecutor(protocol_workers, mp_context=multiprocessing.get_context("spawn"))
+    pool = process_pool(protocol_workers) if protocol_workers > 0 else None
     cats, objs, vws, ious, ious_c, kept = [], [], [], [], [], []
     pending: deque = deque()
 
@@ -612,9 +609,6 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
 # ------------------------------------------------------------------------------------------------
 # Entry point
 
-CONFIG_DIR = str(Path(__file__).resolve().parents[1] / "configs")
-
-
 DISTRIBUTED_MODES = ("auto", True, False)
 
 
@@ -631,48 +625,48 @@ def run(cfg) -> EvaluationResult:
     ``distributed`` ("auto", the default): join the process group that torchrun or srun describe
     when they started several processes; each evaluates its share, rank 0 prints and writes.
     """
-    mode = cfg.get("distributed", "auto")
-    if mode not in DISTRIBUTED_MODES:
-        raise ValueError(f"distributed must be one of {DISTRIBUTED_MODES}, got {mode!r}")
+    mode = config_choice(cfg, "distributed", DISTRIBUTED_MODES)
     if mode is False:
         return _run(cfg, RankInfo())
-    with process_group_from_environment(timeout_s=float(cfg.get("distributed_timeout_s", 4 * 3600))) as ranks:
+    with process_group_from_environment(timeout_s=config_float(cfg, "distributed_timeout_s", minimum=1)) as ranks:
         return _run(cfg, ranks)
+
+
+def _optional_int(cfg, key: str, minimum: int) -> Optional[int]:
+    return None if config_value(cfg, key) is None else config_int(cfg, key, minimum=minimum)
 
 
 def _run(cfg, ranks: RankInfo) -> EvaluationResult:
     from hydra.core.hydra_config import HydraConfig
     from hydra.utils import instantiate
-    from omegaconf import OmegaConf
 
     from .infer import load_model
 
-    split = str(cfg.get("split", "test"))
-    if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
-    out = cfg.get("output_dir") or HydraConfig.get().runtime.output_dir
-    folder = ensure_output_dir(out, "output_dir") if ranks.is_zero else None  # before the long run
+    split = config_choice(cfg, "split", SPLITS)
+    views = config_ints(cfg, "views", allow_null=True)
+    settings = dict(views=None if views is None else list(check_view_ids(views, allow_empty=False)),
+                    max_objects_per_category=_optional_int(cfg, "max_objects_per_category", 1),
+                    batch_size=config_int(cfg, "batch_size", minimum=1),
+                    num_workers=config_int(cfg, "num_workers", minimum=0),
+                    compare_coarse=config_bool(cfg, "compare_coarse"),
+                    protocol_workers=config_int(cfg, "protocol_workers", minimum=0),
+                    progress=config_bool(cfg, "progress") and ranks.is_zero,
+                    distributed=ranks.world_size > 1)
+    baselines = config_value(cfg, "baselines")
+    # The output folder is output_dir, else hydra's run folder (eval.yaml makes them one); checked
+    # before the long run.
+    out = config_value(cfg, "output_dir") or HydraConfig.get().runtime.output_dir
+    folder = ensure_output_dir(out, "output_dir") if ranks.is_zero else None
     datamodule = instantiate(cfg.data)
-    model = load_model(cfg.ckpt_path, _device_of_rank(cfg.get("device", "auto"), ranks))
-    views = cfg.get("views")
+    model = load_model(config_value(cfg, "ckpt_path"), _device_of_rank(config_value(cfg, "device"), ranks))
     say = print if ranks.is_zero else (lambda *args, **kwargs: None)
     say(f"evaluating {model.checkpoint} ({model.stage} stage, {model.output_name} output) on {model.device}"
         + (f" and {ranks.world_size - 1} more processes" if ranks.world_size > 1 else ""))
     say(f"data: {describe_data(datamodule)}; split: {split}")
-    result = evaluate(model, datamodule, split,
-                      views=None if views is None else [int(v) for v in OmegaConf.to_container(views)],
-                      max_objects_per_category=cfg.get("max_objects_per_category"),
-                      batch_size=int(cfg.get("batch_size", 32)), num_workers=int(cfg.get("num_workers", 0)),
-                      compare_coarse=bool(cfg.get("compare_coarse", False)),
-                      protocol_workers=int(cfg.get("protocol_workers", 0)),
-                      progress=bool(cfg.get("progress", True)) and ranks.is_zero,
-                      distributed=ranks.world_size > 1)
+    result = evaluate(model, datamodule, split, **settings)
     if not ranks.is_zero:
         return result
-    baselines = cfg.get("baselines")
-    if OmegaConf.is_list(baselines):
-        baselines = OmegaConf.to_container(baselines)
-    result = add_baselines(result, datamodule, baselines, model, progress=bool(cfg.get("progress", True)))
+    result = add_baselines(result, datamodule, baselines, model, progress=config_bool(cfg, "progress"))
     print()
     print(format_table(result))
     files = write_report(result, folder)
@@ -682,20 +676,12 @@ def _run(cfg, ranks: RankInfo) -> EvaluationResult:
     return result
 
 
+_main = hydra_entry("sdfdiff-evaluate", "eval", run)
+
+
 def main() -> None:
     """``python -m svr.evaluate`` / ``sdfdiff-evaluate``: hydra reads configs/eval.yaml and the overrides."""
-    import hydra
-    from hydra.errors import InstantiationException
-    from omegaconf.errors import MissingMandatoryValue
-
     from .distributed import launch_rank_is_zero
-
-    @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="eval")
-    def _main(cfg) -> None:
-        try:
-            run(cfg)
-        except (ValueError, FileNotFoundError, OSError, MissingMandatoryValue, InstantiationException) as err:
-            sys.exit(f"sdfdiff-evaluate: error: {err}")
 
     if not launch_rank_is_zero():
         # As Lightning does for its DDP processes: one process writes hydra's .hydra/ folder.
@@ -708,4 +694,4 @@ if __name__ == "__main__":
 
 
 __all__ = ["ReferenceRow", "PAPER_REFERENCE_ROWS", "EvaluationResult", "evaluate", "evaluate_objects", "add_baselines",
-           "describe_data", "table_rows", "table_notes", "format_table", "write_report"]
+           "describe_data", "table_rows", "table_notes", "format_table", "write_report", "run", "main"]

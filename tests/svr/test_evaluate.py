@@ -8,7 +8,11 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import signal
+import subprocess
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,7 +26,10 @@ from svr.evaluate import EvaluationResult, evaluate, format_table, main, table_r
 from svr.infer import load_model, predict
 from svr.metrics import iou_protocol, iou_table
 
-CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
+from ..entry_points import expect_usage_error, run_entry
+
+ROOT = Path(__file__).resolve().parents[2]
+CONFIGS = str(ROOT / "configs")
 CATEGORIES = ("chair", "mug")
 # The data overrides of the tiny run, for train.yaml and eval.yaml alike (data group "procedural").
 DATA = {"categories": list(CATEGORIES), "train": 2, "val": 1, "test": 1, "supersample": 1}
@@ -189,21 +196,28 @@ def test_every_nmr_category_gets_a_column_in_table_order():
 def test_errors_name_the_file_or_argument(tiny_run, tmp_path, capsys, monkeypatch):
     junk = tmp_path / "junk.ckpt"
     junk.write_bytes(b"not a checkpoint")
-    with pytest.raises(SystemExit, match="junk.ckpt"):
-        run_main(main, [f"ckpt_path={junk}", f"output_dir={tmp_path / 'o1'}", *tiny_run.data_overrides()],
-                 tmp_path / "h1", monkeypatch)
+    data = [*tiny_run.data_overrides(), "progress=false"]
+    assert "junk.ckpt" in expect_usage_error(main, [f"ckpt_path={junk}", f"output_dir={tmp_path / 'o1'}", *data],
+                                             monkeypatch, capsys, "sdfdiff-evaluate")
     other = tmp_path / "other.ckpt"
     torch.save({"state_dict": {}}, other)
     with pytest.raises(ValueError, match="other.ckpt"):
         load_model(other, "cpu")
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
-    with pytest.raises(SystemExit, match="output_dir"):
-        run_main(main, [f"ckpt_path={tiny_run.checkpoint}", f"output_dir={blocker / 'sub'}",
-                        *tiny_run.data_overrides()], tmp_path / "h2", monkeypatch)
-    with pytest.raises(SystemExit, match="split"):
-        run_main(main, [f"ckpt_path={tiny_run.checkpoint}", "split=testing", f"output_dir={tmp_path / 'o3'}",
-                        *tiny_run.data_overrides()], tmp_path / "h3", monkeypatch)
+    assert str(blocker) in expect_usage_error(main, [f"ckpt_path={tiny_run.checkpoint}",
+                                                     f"output_dir={blocker / 'sub'}", *data], monkeypatch, capsys)
+    assert "split must be one of" in expect_usage_error(
+        main, [f"ckpt_path={tiny_run.checkpoint}", "split=testing", f"output_dir={tmp_path / 'o3'}", *data],
+        monkeypatch, capsys)
+    # The same check of view indices as svr.infer's, before any data is made.
+    assert "views[0] must be an integer in [0, 23], got 99" in expect_usage_error(
+        main, [f"ckpt_path={tiny_run.checkpoint}", "views=[99]", f"output_dir={tmp_path / 'o4'}", *data],
+        monkeypatch, capsys)
+    assert "batch_size must be an integer >= 1, got 'abc'" in expect_usage_error(
+        main, [f"ckpt_path={tiny_run.checkpoint}", "batch_size=abc", f"output_dir={tmp_path / 'o5'}", *data],
+        monkeypatch, capsys)
+    assert not any((tmp_path / f"o{k}").exists() for k in range(1, 6))  # refused runs leave nothing
     with pytest.raises(ValueError, match="output_dir"):
         write_report(fake_result(["02691156"]), blocker / "sub")
     with pytest.raises(ValueError, match="split"):
@@ -220,3 +234,53 @@ def test_worker_processes_give_the_same_numbers(tiny_run):
                       batch_size=1, progress=False)
     assert np.array_equal(serial.iou, pooled.iou) and np.array_equal(serial.iou_coarse, pooled.iou_coarse)
     assert np.array_equal(serial.view, pooled.view) and np.array_equal(serial.category, pooled.category)
+
+
+def test_output_dir_is_the_run_folder(tiny_run, tmp_path, monkeypatch, capsys):
+    """Issue 17 item 13: with output_dir given, nothing is made in the working directory."""
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    out = tmp_path / "out"
+    run_entry(main, [f"ckpt_path={tiny_run.checkpoint}", f"output_dir={out}", "views=[0]", "baselines=[]",
+                     "progress=false", *tiny_run.data_overrides()], monkeypatch)
+    assert list(cwd.iterdir()) == []
+    assert (out / "iou.json").is_file() and (out / ".hydra" / "config.yaml").is_file()
+
+
+WORKERS_SCRIPT = """
+import json, os, sys, time
+from svr.evaluate import process_pool
+pool = process_pool(2)
+pids = sorted({f.result() for f in [pool.submit(os.getpid) for _ in range(16)]})
+print(json.dumps(pids), flush=True)
+time.sleep(120)
+"""
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"  # a zombie is dead, only not reaped
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_protocol_workers_die_with_a_killed_parent(sig):
+    """Issue 17 item 4: svr.evaluate's voxelisation workers (protocol_workers) end with their parent,
+    killed by SIGTERM or SIGKILL, instead of waiting on their queue forever."""
+    proc = subprocess.Popen([sys.executable, "-c", WORKERS_SCRIPT], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        pids = json.loads(proc.stdout.readline())
+        assert pids and all(_alive(p) for p in pids)
+        proc.send_signal(sig)
+        proc.wait(timeout=30)
+        deadline = time.monotonic() + 10
+        while any(_alive(p) for p in pids) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not any(_alive(p) for p in pids)
+    finally:
+        proc.kill()
+        proc.wait()
