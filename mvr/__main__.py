@@ -4,39 +4,34 @@ The only place in mvr that reads hydra configuration (configs/mvr.yaml and the g
 configs/mvr/); everything below it takes plain objects. The console script ``sdfdiff-mvr`` is
 this ``main``, with the same overrides. Benchmarks reuse ``compose_config`` and
 ``reconstruct_kwargs`` so that they run with exactly the command's settings.
+
+Errors in settings or files (missing, empty or non-watertight mesh, unknown shape, a rerun into an
+out_dir of other settings, a corrupt level checkpoint, ``optim.lr=fast``) are one line
+``sdfdiff-mvr: error: ...`` with exit status 2, and a refused run leaves out_dir as it was
+(``sdfcommon.cli``).
 """
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 from typing import Sequence
 
-import hydra
 from omegaconf import DictConfig
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+from sdfcommon.cli import CONFIG_DIR, config_bool, config_int, config_object, config_value, hydra_entry
+
+# The settings nodes (each a ``_target_``) and the keyword of ``mvr.reconstruct`` they become.
+SETTINGS_NODES = {"rig": "rig", "grid": "grid", "target_settings": "target_settings", "schedule": "schedule",
+                  "optim": "optim", "noise": "noise", "evaluation": "evaluation", "scene": "scene",
+                  "trace": "trace"}
 
 
 def reconstruct_kwargs(cfg: DictConfig) -> dict:
     """The keyword arguments of ``mvr.reconstruct`` (all but target and out_dir), instantiated
-    from a composed mvr config (``_target_`` nodes -> plain objects)."""
-    from hydra.utils import instantiate
-
-    return dict(
-        rig=instantiate(cfg.rig),
-        grid=instantiate(cfg.grid),
-        target_settings=instantiate(cfg.target_settings),
-        schedule=instantiate(cfg.schedule, _convert_="all"),
-        optim=instantiate(cfg.optim, _convert_="all"),
-        noise=instantiate(cfg.noise),
-        evaluation=instantiate(cfg.evaluation, _convert_="all"),
-        scene=instantiate(cfg.scene, _convert_="all"),
-        trace=instantiate(cfg.trace),
-        backend=str(cfg.backend),
-        seed=int(cfg.seed),
-        resume=bool(cfg.resume),
-        progress=bool(cfg.progress),
-    )
+    from a composed mvr config (``_target_`` nodes -> plain objects, their values checked against
+    the settings' field types first: ``sdfcommon.cli.config_object``)."""
+    kwargs = {name: config_object(cfg, key, _convert_="all") for key, name in SETTINGS_NODES.items()}
+    return dict(kwargs, backend=str(config_value(cfg, "backend")), seed=config_int(cfg, "seed"),
+                resume=config_bool(cfg, "resume"), progress=config_bool(cfg, "progress"))
 
 
 def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
@@ -47,22 +42,25 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
         return compose(config_name="mvr", overrides=list(overrides))
 
 
-# An absolute path: a relative one would resolve against the package when main() runs as the
-# console script (hydra then looks for a Python package "configs").
-@hydra.main(version_base="1.3", config_path=str(CONFIG_DIR), config_name="mvr")
-def main(cfg: DictConfig) -> float:
-    """Runs one reconstruction; returns its relative Hausdorff distance (for hydra sweepers)."""
+def run(cfg: DictConfig) -> float:
+    """Runs one reconstruction; returns its relative Hausdorff distance."""
     from .reconstruct import reconstruct
     from .runtime import configure_runtime
 
-    configure_runtime(cfg.runtime.threads, cfg.runtime.tune_malloc, cfg.runtime.flush_denormal)
-    result = reconstruct(str(cfg.target), cfg.out_dir, **reconstruct_kwargs(cfg))
+    kwargs = reconstruct_kwargs(cfg)
+    threads = config_value(cfg, "runtime.threads")
+    configure_runtime(None if threads is None else config_int(cfg, "runtime.threads", minimum=1),
+                      config_bool(cfg, "runtime.tune_malloc"), config_bool(cfg, "runtime.flush_denormal"))
+    result = reconstruct(str(config_value(cfg, "target")), str(config_value(cfg, "out_dir")), **kwargs)
     m = result.metrics
     logging.getLogger("mvr").info("wrote %s", result.out_dir)
     print(f"hausdorff_rel={m.get('hausdorff_rel')} chamfer_rel={m.get('chamfer_rel')} "
           f"seconds={m['seconds']:.1f} out_dir={result.out_dir}")
     value = m.get("hausdorff_rel")
     return float("nan") if value is None else float(value)
+
+
+main = hydra_entry("sdfdiff-mvr", "mvr", run)
 
 
 if __name__ == "__main__":

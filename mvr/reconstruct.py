@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
+from sdfcommon.serialization import load_torch
 from svr.geometry import sdf_to_mesh
 
 from . import outputs
@@ -148,10 +149,13 @@ def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int):
     if not found:
         return None
     try:
-        ckpt = torch.load(found[-1], map_location="cpu", weights_only=False)
-    except Exception as exc:  # a truncated or foreign file
-        raise ValueError(f"cannot read checkpoint {str(found[-1])!r} ({exc}); delete it or use resume=false") from exc
-    if not isinstance(ckpt, dict) or ckpt.get("fingerprint") != fingerprint:
+        ckpt = load_torch(found[-1], "cpu", what="level checkpoint")
+    except ValueError as exc:  # a truncated or foreign file
+        raise ValueError(f"{exc}; delete it or use resume=false") from None
+    if not isinstance(ckpt, dict) or not {"fingerprint", "level", "values", "bbox_min", "bbox_max",
+                                          "reports"} <= set(ckpt):
+        raise ValueError(f"{found[-1]}: not a level checkpoint of mvr; delete it or use resume=false")
+    if ckpt.get("fingerprint") != fingerprint:
         raise ValueError(
             f"out_dir {str(out_dir)!r} holds checkpoints of a run with other settings ({found[-1].name}); "
             f"use another out_dir, or resume=false to start this one afresh")
@@ -235,7 +239,6 @@ def reconstruct(
         raise ValueError(f"target extent {target_settings.extent} does not fit the grid box of side "
                          f"{2 * grid.half_size}")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     spec = target.source if isinstance(target, Target) else str(target)
     # What shapes the optimisation (the fingerprint a resumed run must match); evaluation is not.
     settings = {
@@ -248,17 +251,19 @@ def reconstruct(
     lo = torch.full((3,), -grid.half_size)
     hi = torch.full((3,), grid.half_size)
 
+    # Everything that can refuse the run (the resume point, the target) comes before the first
+    # file is written or an old checkpoint removed.
     state = _load_resume_point(out, fingerprint, len(resolutions)) if resume else None
+    t0 = time.perf_counter()
+    tgt = target if isinstance(target, Target) else make_target(
+        spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution)
+    seconds_target = time.perf_counter() - t0
+    out.mkdir(parents=True, exist_ok=True)
     if not resume:
         for old in (out / "checkpoints").glob("level_*.pt") if (out / "checkpoints").is_dir() else []:
             old.unlink()
     outputs.write_json(out / "settings.json", {**settings, "evaluation": asdict(evaluation), "backend": backend,
                                                "fingerprint": fingerprint})
-
-    t0 = time.perf_counter()
-    tgt = target if isinstance(target, Target) else make_target(
-        spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution)
-    seconds_target = time.perf_counter() - t0
     log.info("target %s: %d faces, bbox diagonal %.4f", tgt.source, len(tgt.mesh.faces), tgt.diagonal)
 
     gen = torch.Generator().manual_seed(int(seed))

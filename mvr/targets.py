@@ -116,11 +116,12 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     """
     p = Path(path)
     suffix = p.suffix.lower()
+    if p.is_dir():
+        raise ValueError(f"target {str(p)!r} is a folder; give a mesh file ({', '.join(MESH_FORMATS)}) or a "
+                         f"built-in shape ({', '.join(SHAPES)})")
     if suffix not in MESH_FORMATS:
         raise ValueError(f"target mesh file {str(p)!r} has an unsupported format {suffix or '(none)'!r}; "
                          f"expected one of {', '.join(MESH_FORMATS)}")
-    if p.is_dir():
-        raise ValueError(f"target mesh file {str(p)!r} is a directory, not a mesh file")
     if not p.is_file():
         raise FileNotFoundError(f"target mesh file not found: {str(p)!r}")
     if p.stat().st_size == 0:
@@ -128,7 +129,12 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
     try:
         mesh = trimesh.load(str(p), force="mesh", process=True)
     except Exception as exc:  # trimesh raises many types for malformed files
-        raise ValueError(f"could not read target mesh file {str(p)!r}: {exc}") from exc
+        # An ImportError is trimesh reaching for an optional decoder after the file failed to parse
+        # (a corrupt binary STL is retried as text): its module name would mislead.
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        detail = "" if isinstance(exc, ImportError) else f" ({type(exc).__name__}: {first})"
+        raise ValueError(f"could not read target mesh file {str(p)!r}: not a valid {suffix[1:].upper()} "
+                         f"file{detail}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise ValueError(f"target mesh file {str(p)!r} holds no triangles")
     if not np.isfinite(mesh.vertices).all():

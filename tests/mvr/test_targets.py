@@ -87,7 +87,7 @@ def test_bad_mesh_files(tmp_path):
         make_target(str(garbage))
     folder = tmp_path / "folder.obj"
     folder.mkdir()
-    with pytest.raises(ValueError, match=r"folder\.obj.*directory"):
+    with pytest.raises(ValueError, match=r"folder\.obj.*is a folder"):
         make_target(str(folder))
 
 
