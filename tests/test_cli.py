@@ -191,3 +191,28 @@ def test_random_bytes_never_get_the_advice_to_load_unsafely(tmp_path):
     wrapped = f"x.ckpt: not a readable checkpoint (UnpicklingError: {raw.value})"
     assert "weights_only" not in scrub_unsafe_advice(wrapped) and scrub_unsafe_advice(wrapped).endswith(")")
     assert USAGE_ERROR == 2
+
+
+@pytest.mark.parametrize("module, own, foreign", [
+    ("svr.infer", ["ckpt_path:", "images:", "render_size:", "sdfdiff-infer"],
+     ["stage", "trainer", "model:", "mvr/noise", "data:", "callbacks", "logger"]),
+    ("svr.evaluate", ["ckpt_path:", "protocol_workers:", "data: nmr, procedural, procedural_bench", "sdfdiff-evaluate"],
+     ["stage", "trainer", "model:", "mvr/noise", "callbacks", "logger"]),
+    ("mvr.__main__", ["target:", "optim:", "mvr/noise: camera, image, none", "sdfdiff-mvr"],
+     ["stage", "trainer", "model:", "data:", "callbacks", "logger"]),
+])
+def test_help_lists_the_commands_own_settings_only(module, own, foreign, monkeypatch, capsys):
+    """Issue 17 item 17: ``sdfdiff-infer --help`` no longer lists training's and mvr's config groups."""
+    import importlib
+
+    main = importlib.import_module(module).main
+    monkeypatch.setattr(sys, "argv", ["prog", "--help"])
+    try:
+        main()
+    except SystemExit as stop:
+        assert not stop.code
+    text = capsys.readouterr().out
+    for word in own:
+        assert word in text, word
+    for word in foreign:
+        assert word not in text, word
