@@ -17,9 +17,10 @@ that is the hydra wrapper (as the lightning-hydra-template's ``train.py``)::
   ``SystemExit`` passes untouched (e.g. 143 after SIGTERM), as do KeyboardInterrupt and other
   BaseExceptions.
 * leaves nothing of a failed run behind: when the run wrote nothing but its records (hydra's
-  ``.hydra/`` folder, ``*.log`` files, ``config.yaml``, ``settings.json``: ``RUN_RECORDS``), those
-  it created are deleted, those that existed before are restored to their bytes (a log is cut back
-  to its length), and the run folder goes if the run created it and it is empty. What existed
+  ``.hydra/`` folder, ``*.log`` files, and ``records``: ``config.yaml`` and ``settings.json`` by
+  default, ``RUN_RECORDS``), those it created are deleted, those that existed before are restored
+  to their bytes (a log is cut back to its length), and the run folder goes if the run created it
+  and it is empty, with the empty folders made to hold it. What existed
   before the command started is never deleted: a snapshot of the run folder is taken by
   ``RunFolderGuard``, a hydra callback that ``main()`` adds, before hydra creates anything. A
   failed run that wrote results (e.g. checkpoints) keeps its folder as it is. A run that succeeds
@@ -150,14 +151,16 @@ class RunFolderSnapshot:
     folder: Path
     existed: bool
     sizes: dict[str, int] = field(default_factory=dict)
-    records: dict[str, bytes] = field(default_factory=dict)
+    record_bytes: dict[str, bytes] = field(default_factory=dict)
     folders: set[str] = field(default_factory=set)
     output_subdir: Optional[str] = ".hydra"
+    records: tuple[str, ...] = RUN_RECORDS
     first_missing: Optional[Path] = None
 
     @classmethod
-    def take(cls, folder: Path, output_subdir: Optional[str] = ".hydra") -> "RunFolderSnapshot":
-        snap = cls(folder=folder, existed=folder.is_dir(), output_subdir=output_subdir)
+    def take(cls, folder: Path, output_subdir: Optional[str] = ".hydra",
+             records: tuple[str, ...] = RUN_RECORDS) -> "RunFolderSnapshot":
+        snap = cls(folder=folder, existed=folder.is_dir(), output_subdir=output_subdir, records=tuple(records))
         if not snap.existed:
             snap.first_missing = folder
             while not snap.first_missing.parent.exists() and snap.first_missing.parent != snap.first_missing:
@@ -166,7 +169,7 @@ class RunFolderSnapshot:
             for rel, path in _walk(folder, snap.folders):
                 snap.sizes[rel] = path.stat().st_size
                 if snap.is_record(rel) and not rel.endswith(".log") and snap.sizes[rel] <= _RECORD_BYTES:
-                    snap.records[rel] = path.read_bytes()
+                    snap.record_bytes[rel] = path.read_bytes()
         return snap
 
     def is_record(self, rel: str) -> bool:
@@ -174,7 +177,7 @@ class RunFolderSnapshot:
         parts = Path(rel).parts
         if self.output_subdir and Path(self.output_subdir).parts == parts[:len(Path(self.output_subdir).parts)]:
             return True
-        return len(parts) == 1 and (rel.endswith(".log") or rel in RUN_RECORDS)
+        return len(parts) == 1 and (rel.endswith(".log") or rel in self.records)
 
     def clean_after_failure(self) -> bool:
         """Undoes a failed run's records when it wrote nothing else (see the module docstring).
@@ -192,7 +195,7 @@ class RunFolderSnapshot:
             return False
         for rel in new:
             _unlink(now[rel])
-        for rel, old in self.records.items():
+        for rel, old in self.record_bytes.items():
             path = self.folder / rel
             if rel in now and path.read_bytes() != old:
                 _write_back(path, old)
@@ -265,6 +268,7 @@ class _RunState:
 
     snapshot: Optional[RunFolderSnapshot] = None
     prog: str = "sdfdiff"
+    records: tuple[str, ...] = RUN_RECORDS
 
 
 _RUN = _RunState()
@@ -277,7 +281,8 @@ class RunFolderGuard(Callback):
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
         folder = Path(os.path.abspath(str(OmegaConf.select(config, "hydra.run.dir"))))
-        snap = _RUN.snapshot = RunFolderSnapshot.take(folder, OmegaConf.select(config, "hydra.output_subdir"))
+        snap = _RUN.snapshot = RunFolderSnapshot.take(folder, OmegaConf.select(config, "hydra.output_subdir"),
+                                                      _RUN.records)
         try:  # hydra turns a callback's exception into a warning: report it here
             folder.mkdir(parents=True, exist_ok=True)
             fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=folder)
@@ -320,7 +325,7 @@ def run_task(prog: str, task: Callable[[DictConfig], Any], cfg: DictConfig) -> A
 
 
 def hydra_entry(prog: str, config_name: str, task: Callable[[DictConfig], Any],
-                config_dir: Path = CONFIG_DIR) -> Callable[[], None]:
+                config_dir: Path = CONFIG_DIR, records: Sequence[str] = RUN_RECORDS) -> Callable[[], None]:
     """The ``main()`` of an entry point: hydra composes ``<config_dir>/<config_name>.yaml`` with the
     command line and ``task(cfg)`` runs under ``run_task``'s error handling.
 
@@ -329,6 +334,9 @@ def hydra_entry(prog: str, config_name: str, task: Callable[[DictConfig], Any],
         config_name: the primary config (e.g. "infer").
         task: the function that takes the composed config and does the work.
         config_dir: the folder of the configs (absolute: console scripts run from anywhere).
+        records: names of the files the task writes at the top of the run folder about the run
+            itself (not results), besides hydra's ``.hydra/`` and ``*.log``; a failed run that wrote
+            nothing else is undone.
     Returns:
         ``main()``, for ``[project.scripts]`` and ``if __name__ == "__main__": main()``. It returns
         None (hydra.main does not pass the task's result on); the exit status is 0 on success,
@@ -341,7 +349,7 @@ def hydra_entry(prog: str, config_name: str, task: Callable[[DictConfig], Any],
         return run_task(prog, task, cfg)
 
     def main() -> None:
-        _RUN.snapshot, _RUN.prog = None, prog
+        _RUN.snapshot, _RUN.prog, _RUN.records = None, prog, tuple(records)
         argv = list(sys.argv)
         if GUARD_OVERRIDE not in sys.argv:
             sys.argv.append(GUARD_OVERRIDE)

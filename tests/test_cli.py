@@ -41,6 +41,9 @@ def toy_task(cfg):
     if cfg.mode in ("user", "results"):
         (out / "settings.json").write_text(json.dumps({"new": True}))
         raise ValueError("the thing named in the message is wrong")
+    if cfg.mode == "notes":
+        (out / "notes.txt").write_text("about this run")
+        raise ValueError("refused")
     if cfg.mode == "bug":
         raise RuntimeError("a bug")
     if cfg.mode == "exit":
@@ -110,6 +113,17 @@ def test_a_failed_run_that_wrote_results_keeps_them(toy, tmp_path, monkeypatch, 
     run = tmp_path / "partial"
     expect_usage_error(toy, [f"out={run}", "mode=results"], monkeypatch, capsys)
     assert (run / "result.txt").read_text() == "partial" and (run / ".hydra" / "config.yaml").is_file()
+
+
+def test_an_entry_names_its_own_records(tmp_path, monkeypatch, capsys):
+    conf = tmp_path / "conf"
+    conf.mkdir()
+    (conf / "toy.yaml").write_text(TOY_YAML)
+    for records, kept in ((("notes.txt",), False), ((), True)):
+        entry = hydra_entry("toy-cmd", "toy", toy_task, conf, records=records)
+        run = tmp_path / f"run{len(records)}"
+        expect_usage_error(entry, [f"out={run}", "mode=notes"], monkeypatch, capsys)
+        assert run.exists() == kept
 
 
 def test_an_unwritable_run_folder_is_one_line(toy, tmp_path, monkeypatch, capsys):
