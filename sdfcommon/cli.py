@@ -280,7 +280,13 @@ class RunFolderGuard(Callback):
     that an unwritable run folder is one line and not hydra's traceback."""
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
-        folder = Path(os.path.abspath(str(OmegaConf.select(config, "hydra.run.dir"))))
+        try:
+            folder = Path(os.path.abspath(str(OmegaConf.select(config, "hydra.run.dir"))))
+        except Exception as err:  # e.g. output_dir=${nope}; left to hydra (a traceback) if not a user's
+            message = user_message(err)
+            if message is None:
+                return
+            _report(_RUN.prog, message)
         snap = _RUN.snapshot = RunFolderSnapshot.take(folder, OmegaConf.select(config, "hydra.output_subdir"),
                                                       _RUN.records)
         try:  # hydra turns a callback's exception into a warning: report it here

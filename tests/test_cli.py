@@ -131,6 +131,8 @@ def test_an_unwritable_run_folder_is_one_line(toy, tmp_path, monkeypatch, capsys
     blocker.write_text("x")
     line = expect_usage_error(toy, [f"out={blocker / 'run'}"], monkeypatch, capsys)
     assert str(blocker) in line and blocker.read_text() == "x"
+    line = expect_usage_error(toy, ["out=${nope}"], monkeypatch, capsys)  # a run folder that cannot resolve
+    assert line == "toy-cmd: error: hydra.run.dir: Interpolation key 'nope' not found"
 
 
 def test_getters_name_the_key():
