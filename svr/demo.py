@@ -2,8 +2,9 @@
 
     python -m svr.demo [--out outputs/demo] [--eval-only | --fresh] [hydra overrides ...]
 
-A run that was stopped resumes from its last checkpoint when the command is run again; a finished
-run is only evaluated again.
+A run that was stopped (Ctrl+C, SIGTERM: it saves a checkpoint and exits with status 143) resumes
+from its last checkpoint, with its saved config, when the command is run again; a finished run is
+only evaluated again. ``--out`` is taken from the working directory.
 
 Writes into ``--out`` (default ``outputs/demo``):
 
@@ -14,8 +15,9 @@ Writes into ``--out`` (default ``outputs/demo``):
   shape, category mean shape, retrieval, the oracle) as rows, and ours minus retrieval;
   ``iou.json`` (``{"split", "categories", "mean", ...}``, the coarse stage under ``"extra"``, the
   baselines under ``"baselines"``); ``per_object.csv`` and ``per_image.csv``;
-* ``timings.json``: training, evaluation and total seconds, and per stage the steps planned and reached
-  (fewer reached: the stage's time cap stopped it);
+* ``timings.json``: the whole run's training seconds (over resumes: each stage's checkpointed
+  training time), this command's wall seconds, evaluation seconds, and per stage the steps planned
+  and reached (fewer reached: the stage's time cap stopped it; also in ``iou.json``);
 * ``predictions.png``: per category one test input beside renders of the predictions;
 * ``meshes/*.ply``: marching-cubes meshes of the full model's predictions for those inputs.
 """
@@ -23,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Optional, Sequence
@@ -185,16 +188,47 @@ def stage_steps(cfg, run_dir: Path) -> dict[str, dict[str, Optional[int]]]:
 def resume_point(run_dir: Path, schedule: Sequence[str]) -> tuple[bool, Optional[Path]]:
     """Where a demo run left off: (finished, checkpoint to resume from).
 
-    Finished when the last scheduled stage wrote ``final.ckpt``; otherwise the latest stage with a
-    ``final.ckpt`` or ``last.ckpt`` is resumed from it (None: start from scratch).
+    Finished when the last scheduled stage wrote ``final.ckpt``; otherwise the latest checkpoint
+    of the latest stage that wrote one (``svr.training.latest_checkpoint``; None: start afresh).
     """
-    for i, stage in reversed(list(enumerate(schedule))):
-        d = Path(run_dir) / stage / "checkpoints"
-        if (d / "final.ckpt").is_file():
-            return i == len(schedule) - 1, d / "final.ckpt"
-        if (d / "last.ckpt").is_file():
-            return False, d / "last.ckpt"
-    return False, None
+    from .training import latest_checkpoint
+
+    if (Path(run_dir) / schedule[-1] / "checkpoints" / "final.ckpt").is_file():
+        return True, Path(run_dir) / schedule[-1] / "checkpoints" / "final.ckpt"
+    return False, latest_checkpoint(run_dir, schedule)
+
+
+def run_train_seconds(run_dir: Path, schedule: Sequence[str]) -> Optional[float]:
+    """The whole run's training seconds: the sum over its stages of the ``train_seconds`` their
+    final checkpoints record (kept over resumes, so a run stopped and resumed counts every part).
+    None when a stage has not finished."""
+    from .models.module import CHECKPOINT_KEY, load_checkpoint
+
+    total = 0.0
+    for stage in schedule:
+        final = Path(run_dir) / stage / "checkpoints" / "final.ckpt"
+        if not final.is_file():
+            return None
+        total += float(load_checkpoint(final)[CHECKPOINT_KEY].get("train_seconds", 0.0))
+    return total
+
+
+def demo_config(run_dir: Path, overrides: Sequence[str], fresh: bool):
+    """The demo's config: ``experiment=demo`` with the overrides; for a run already in ``run_dir``
+    (unless ``fresh``), that run's ``config.yaml`` with the changes a resume may make
+    (``svr.training.resume_config``: other changed settings are refused, naming them)."""
+    from omegaconf import OmegaConf
+
+    from .training import resume_config
+
+    cfg = compose_config(overrides)
+    saved = Path(run_dir) / "config.yaml"
+    if fresh or not saved.is_file():
+        return cfg
+    merged, changes = resume_config(OmegaConf.load(saved), cfg, list(overrides))
+    for change in changes:
+        print(f"warning: resuming {run_dir} with a changed setting: {change}")
+    return merged
 
 
 def main(argv: Optional[Sequence[str]] = None) -> dict:
@@ -211,17 +245,13 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     args = parser.parse_args(argv)
     if args.protocol_workers < 0:
         parser.error(f"--protocol-workers must be >= 0, got {args.protocol_workers}")
-    out_dir = Path(args.out)
-    if not out_dir.is_absolute():
-        out_dir = REPO_ROOT / out_dir
+    out_dir = Path(args.out).expanduser().resolve()  # from the working directory, as every command
     run_dir = out_dir / "train"
-    cfg = compose_config(list(args.overrides) + (["data.progress=false"] if args.quiet else []))
-    if args.quiet:
-        cfg.callbacks.progress_bar = None
-        cfg.trainer.enable_progress_bar = False
+    quiet = ["data.progress=false", "trainer.enable_progress_bar=false", "callbacks.progress_bar=null"]
+    cfg = demo_config(run_dir, list(args.overrides) + (quiet if args.quiet else []), args.fresh)
     schedule = list(cfg.stage.schedule)
     start = time.time()
-    train_seconds = None
+    train_wall = None
     finished, resume = (False, None) if args.fresh else resume_point(run_dir, schedule)
     if args.eval_only:
         if not finished:
@@ -230,7 +260,7 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
     elif finished:
         print(f"{run_dir} holds a finished run: evaluating it (--fresh trains again)")
     else:
-        from .training import train
+        from .training import TrainingStopped, train
 
         if args.fresh and run_dir.exists():
             import shutil
@@ -240,21 +270,30 @@ def main(argv: Optional[Sequence[str]] = None) -> dict:
             print(f"resuming the unfinished run in {run_dir} from {resume}")
             cfg.ckpt_path = str(resume)
         print(f"training experiment=demo into {run_dir} (stages: {', '.join(schedule)})", flush=True)
-        train(cfg, run_dir)
-        train_seconds = time.time() - start
+        try:
+            train(cfg, run_dir)
+        except TrainingStopped:
+            print(f"the demo stopped; run the same command again to resume it from {run_dir}", file=sys.stderr)
+            raise
+        train_wall = time.time() - start
     t_eval = time.time()
     result = evaluate_run(cfg, run_dir, out_dir, progress=not args.quiet, protocol_workers=args.protocol_workers)
     steps = stage_steps(cfg, run_dir)
-    timings = {"train_seconds": train_seconds, "eval_seconds": time.time() - t_eval,
-               "total_seconds": time.time() - start, "steps": steps}
+    train_seconds = run_train_seconds(run_dir, schedule)
+    timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,
+               "eval_seconds": time.time() - t_eval, "total_seconds_this_command": time.time() - start,
+               "resumed": resume is not None, "steps": steps}
     from mvr.outputs import write_json
 
     result["files"].append(str(write_json(out_dir / "timings.json", timings)))
+    iou_json = out_dir / "iou.json"
+    write_json(iou_json, {**json.loads(iou_json.read_text()), "steps": steps})
+    result["iou"]["steps"] = steps
     print()
     print(result["table"])
     if train_seconds is not None:
-        print(f"training {train_seconds / 60:.1f} min, evaluation {timings['eval_seconds'] / 60:.1f} min, "
-              f"total {timings['total_seconds'] / 60:.1f} min")
+        print(f"training {train_seconds / 60:.1f} min (the whole run{', over resumes' if resume else ''}), "
+              f"evaluation {timings['eval_seconds'] / 60:.1f} min")
     print("steps (planned / reached): " + ", ".join(f"{k} {v['planned']} / {v['reached']}" for k, v in steps.items()))
     short = [k for k, v in steps.items() if v["reached"] is not None and v["reached"] < v["planned"]]
     if short:

@@ -7,14 +7,15 @@ job with ``-m``).
 Resuming: ``ckpt_path=RUN`` (a run folder) or ``ckpt_path=RUN/<stage>/checkpoints/last.ckpt``
 continues that run in its own folder, with its saved ``config.yaml``; the command line may change
 only ``svr.training.RESUMABLE_KEYS`` (each change is logged as a warning). hydra's ``.hydra/``
-record of the original run is left as it was.
+record of the original run is left as it was. SLURM batch jobs: see ``slurm_arguments``.
 """
 from __future__ import annotations
 
 import logging
+import os
 import sys
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Mapping, Optional, Sequence
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
@@ -75,6 +76,31 @@ def resumed_config(cfg: DictConfig, run_dir: Path, overrides: Sequence[str]) -> 
     return merged
 
 
+def slurm_arguments(argv: Sequence[str], environ: Mapping[str, str]) -> list[str]:
+    """The hydra overrides that let SLURM's requeue continue a run (as Lightning intends: on the
+    signal SLURM sends before the time limit, ``#SBATCH --signal=SIGUSR1@90``, Lightning saves
+    ``<stage>/hpc_ckpt_<n>.ckpt`` and requeues the job; at the limit, SIGTERM saves ``last.ckpt``).
+
+    In a SLURM batch job (not an interactive one, as Lightning tells them apart) the run folder is
+    ``outputs/train/slurm-<job id>`` (``<array job>_<task>`` for arrays) unless ``hydra.run.dir``
+    is given, so the requeued job finds it; when the job was requeued (``SLURM_RESTART_COUNT`` > 0)
+    and names no ``ckpt_path``, it resumes that folder's latest checkpoint.
+    """
+    job = environ.get("SLURM_JOB_ID")
+    if not job or environ.get("SLURM_JOB_NAME") in ("bash", "interactive"):
+        return []
+    if "-m" in argv or "--multirun" in argv or any(a.startswith("hydra.run.dir=") for a in argv):
+        return []
+    if environ.get("SLURM_ARRAY_JOB_ID") and environ.get("SLURM_ARRAY_TASK_ID"):
+        job = f"{environ['SLURM_ARRAY_JOB_ID']}_{environ['SLURM_ARRAY_TASK_ID']}"
+    run = Path("outputs") / "train" / f"slurm-{job}"
+    out = [f"hydra.run.dir={run}"]
+    requeued = int(environ.get("SLURM_RESTART_COUNT") or 0) > 0
+    if requeued and _override_value(argv, "ckpt_path") in (None, "", "null") and (run / "config.yaml").is_file():
+        out += [f"ckpt_path={run}", "hydra.output_subdir=null"]
+    return out
+
+
 @hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
 def _main(cfg: DictConfig) -> float | None:
     from hydra.core.hydra_config import HydraConfig
@@ -83,6 +109,9 @@ def _main(cfg: DictConfig) -> float | None:
 
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
+    if cfg.get("ckpt_path") is None and (run_dir / "config.yaml").is_file():
+        raise ValueError(f"hydra.run.dir={run_dir} already holds a training run: resume it with "
+                         f"ckpt_path={run_dir}, or give another hydra.run.dir")
     cfg = resumed_config(cfg, run_dir, list(hydra_cfg.overrides.task))
     result = train(cfg, run_dir)
     for s in result.stages:
@@ -93,6 +122,7 @@ def _main(cfg: DictConfig) -> float | None:
 
 def main() -> float | None:
     """Trains; returns the last stage's best validation IoU (hydra sweepers can optimise it)."""
+    sys.argv.extend(slurm_arguments(sys.argv[1:], os.environ))
     sys.argv.extend(resume_arguments(sys.argv[1:]))
     return _main()
 

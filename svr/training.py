@@ -27,6 +27,7 @@ import logging
 import signal
 import sys
 import threading
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Sequence
@@ -120,7 +121,7 @@ class SaveOnStop(pl.Callback):
 
     def _save(self, trainer: pl.Trainer) -> None:
         if self.saved_step is None:
-            trainer.save_checkpoint(self.path)
+            trainer.save_checkpoint(self.path, weights_only=False)
             self.saved_step = int(trainer.global_step)
 
     def on_train_batch_end(self, trainer: pl.Trainer, *args: Any) -> None:
@@ -130,6 +131,23 @@ class SaveOnStop(pl.Callback):
     def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
         if isinstance(exception, SIGTERMException):
             self._save(trainer)
+
+
+class _DropAdvertisements(logging.Filter):
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("\U0001f4a1 Tip:")  # "try installing <a cloud logger>"
+
+
+def quiet_known_noise() -> None:
+    """Silences the messages every stage would print that say nothing about this run: Lightning's
+    advertisement for a cloud logger, a deprecation inside Lightning's own code (LeafSpec), and
+    the warning about modules in eval mode (the stages freeze parts of the network on purpose:
+    their batch-norm statistics must not move, ``SVRLightningModule.apply_stage``)."""
+    rank_zero = logging.getLogger("pytorch_lightning.utilities.rank_zero")
+    if not any(isinstance(f, _DropAdvertisements) for f in rank_zero.filters):
+        rank_zero.addFilter(_DropAdvertisements())
+    warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated")
+    warnings.filterwarnings("ignore", message=r"Found \d+ module\(s\) in eval mode at the start of training")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -235,20 +253,24 @@ def _step_of(row: dict) -> Optional[int]:
 
 
 def _adopt_metrics_file(logger: CSVLogger) -> None:
-    """Points a fresh CSV logger at the ``metrics.csv`` kept by ``continue_metrics``: it appends
-    (the writer would delete the file, and warn about the folder, when it starts)."""
+    """Points a fresh CSV logger at a resumed stage's log folder: it appends to the ``metrics.csv``
+    kept by ``continue_metrics`` (its writer would delete the file, and warn about the folder,
+    when it starts)."""
     log_dir = Path(logger.log_dir)
-    path = log_dir / "metrics.csv"
-    if not path.is_file():
+    if not log_dir.is_dir():
         return
-    with open(path, newline="") as f:
-        columns = next(csv.reader(f), [])
+    path = log_dir / "metrics.csv"
+    columns = None
+    if path.is_file():
+        with open(path, newline="") as f:
+            columns = next(csv.reader(f), [])
     kept = log_dir.rename(log_dir.with_name(f".{log_dir.name}.kept"))
     writer = logger.experiment  # creates log_dir anew, empty
     for item in kept.iterdir():
         item.rename(log_dir / item.name)
     kept.rmdir()
-    writer.metrics_keys = list(columns)
+    if columns is not None:
+        writer.metrics_keys = list(columns)
 
 
 def stage_max_steps(cfg: DictConfig, stage: str) -> int:
@@ -274,7 +296,8 @@ def build_trainer(cfg: DictConfig, stage: str, stage_dir: Path, resume_step: Opt
     loggers = _instantiate_group(cfg.get("logger"), save_dir=str(stage_dir))
     for lg in loggers:
         if isinstance(lg, CSVLogger) and launch_rank_is_zero():
-            if continue_metrics(Path(lg.log_dir), resume_step) == Path(lg.log_dir) / "metrics.csv":
+            continue_metrics(Path(lg.log_dir), resume_step)
+            if resume_step is not None:
                 _adopt_metrics_file(lg)
     kwargs: dict[str, Any] = dict(
         max_steps=max_steps,
@@ -322,20 +345,26 @@ def plan_schedule(schedule: list[str], ckpt_stage: Optional[str]) -> tuple[int, 
 
 def run_folder_of(ckpt_path: str | Path) -> Optional[Path]:
     """The training run a checkpoint belongs to: ``RUN`` for ``RUN/<stage>/checkpoints/<name>.ckpt``
-    when ``RUN/config.yaml`` exists (a folder this module wrote); None otherwise."""
+    (or ``RUN/<stage>/hpc_ckpt_<n>.ckpt``) when ``RUN/config.yaml`` exists (a folder this module
+    wrote); None otherwise."""
     p = Path(ckpt_path).expanduser().resolve()
-    if p.parent.name != "checkpoints" or p.parent.parent.name not in STAGES:
+    if p.parent.name == "checkpoints" and p.parent.parent.name in STAGES:
+        run = p.parent.parent.parent
+    elif p.name.startswith("hpc_ckpt_") and p.parent.name in STAGES:  # Lightning's SLURM checkpoints
+        run = p.parent.parent
+    else:
         return None
-    run = p.parent.parent.parent
     return run if (run / "config.yaml").is_file() else None
 
 
 def latest_checkpoint(run_dir: str | Path, schedule: Sequence[str]) -> Optional[Path]:
-    """What a stopped run resumes from: the newest of ``last.ckpt`` and ``final.ckpt`` of the latest
-    scheduled stage that wrote one (None: no stage has)."""
+    """What a stopped run resumes from: the newest of ``last.ckpt``, ``final.ckpt`` and Lightning's
+    SLURM checkpoints (``<stage>/hpc_ckpt_<n>.ckpt``) of the latest scheduled stage that wrote one
+    (None: no stage has)."""
     for stage in reversed(list(schedule)):
         d = Path(run_dir) / stage / "checkpoints"
         found = [d / n for n in ("final.ckpt", "last.ckpt") if (d / n).is_file()]
+        found += [f for f in (Path(run_dir) / stage).glob("hpc_ckpt_*.ckpt") if f.is_file()]
         if found:
             return max(found, key=lambda f: f.stat().st_mtime_ns)
     return None
@@ -459,6 +488,7 @@ def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
         resume_step = int(ckpt.get("global_step", 0)) if resume else None
 
     run_dir.mkdir(parents=True, exist_ok=True)
+    quiet_known_noise()
     keep_freed_memory()  # a step's 64^3 grids reuse pages instead of faulting them in again
     if launch_rank_is_zero():  # the other DDP processes run this too, in the same folder
         for stale in remove_stale_temporaries(run_dir):
@@ -529,13 +559,19 @@ def _run_schedule(cfg: DictConfig, run_dir: Path, schedule: list[str], start: in
         log.info("stage %s: %d steps -> %s", stage, int(cfg.stage[stage].max_steps), stage_dir)
         try:
             _IN_FIT = True
-            trainer.fit(module, datamodule=datamodule, ckpt_path=str(ckpt_path) if resuming else None)
+            with warnings.catch_warnings():
+                if resuming:  # the run's own folder: of course it holds checkpoints and logs
+                    warnings.filterwarnings("ignore", message=r"(Checkpoint|Experiment logs) directory .* exists and "
+                                                              r"is not empty")
+                # weights_only: our checkpoints hold tensors and plain values only (never unpickle code)
+                trainer.fit(module, datamodule=datamodule, ckpt_path=str(ckpt_path) if resuming else None,
+                            weights_only=True)
         except SIGTERMException:
             raise _stopped(trainer, stage, run_dir) from None
         finally:
             _IN_FIT = False
         final = stage_dir / "checkpoints" / "final.ckpt"
-        trainer.save_checkpoint(final)
+        trainer.save_checkpoint(final, weights_only=False)  # a full, resumable checkpoint
         best, last, score = _checkpoint_callbacks(trainer)
         results.append(StageResult(stage, stage_dir, best, last, final, score))
         log.info("stage %s done: best val IoU %s (%s), final %s", stage, score, best, final)

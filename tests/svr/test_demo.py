@@ -7,7 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from svr.demo import main, resume_point
+from svr.demo import main, resume_point, run_train_seconds
+
+SCHEDULE = ("coarse", "refine", "joint")
 
 
 def tiny(cache: Path) -> list[str]:
@@ -57,9 +59,34 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     coarse_stamp = (out / "train" / "coarse" / "checkpoints" / "final.ckpt").stat().st_mtime_ns
     main(args)
     assert "resuming the unfinished run" in capsys.readouterr().out
-    assert (out / "train" / "refine" / "csv" / "metrics.1.csv").is_file()  # the first run's log is kept
+    assert (out / "train" / "refine" / "csv" / "metrics.csv").is_file()  # the run's log, kept in place
     assert final.is_file()
     assert (out / "train" / "coarse" / "checkpoints" / "final.ckpt").stat().st_mtime_ns == coarse_stamp
+
+
+def test_demo_stopped_by_sigterm_resumes_and_counts_the_whole_run(tmp_path, capsys, monkeypatch):
+    """A SIGTERM during the demo's training exits with status 143; running the command again (from
+    another working directory, with a relative --out) resumes that run, and timings.json counts the
+    training time of both parts; the steps planned and reached are in iou.json too."""
+    monkeypatch.chdir(tmp_path)
+    stop = ["+callbacks.terminator._target_=tests.svr.test_resume.TermAtStep", "+callbacks.terminator.stage=refine",
+            "+callbacks.terminator.step=1"]
+    args = ["--out", "rel/demo", "--quiet", "--protocol-workers", "0", *tiny(tmp_path / "cache")]
+    with pytest.raises(SystemExit) as stopped:
+        main([*args, *stop])
+    assert stopped.value.code == 143
+    assert "run the same command again" in capsys.readouterr().err
+    run = tmp_path / "rel" / "demo" / "train"  # --out from the working directory
+    first_part = run_train_seconds(run, ["coarse"])
+    assert first_part > 0 and (run / "refine" / "checkpoints" / "last.ckpt").is_file()
+    result = main([*args, *stop])  # the same command: resumes after refine's step 1
+    assert "resuming the unfinished run" in capsys.readouterr().out
+    timings = json.loads((tmp_path / "rel" / "demo" / "timings.json").read_text())
+    assert timings["resumed"] and timings["train_seconds"] == pytest.approx(run_train_seconds(run, SCHEDULE))
+    assert timings["train_seconds"] > first_part
+    steps = {s: {"planned": 2, "reached": 2} for s in SCHEDULE}
+    assert timings["steps"] == steps and result["iou"]["steps"] == steps
+    assert json.loads((tmp_path / "rel" / "demo" / "iou.json").read_text())["steps"] == steps
 
 
 def test_resume_point_and_eval_only_errors(tmp_path):

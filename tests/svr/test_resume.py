@@ -18,7 +18,7 @@ import torch
 from omegaconf import OmegaConf
 
 from svr.models.module import load_checkpoint
-from svr.train_main import resume_arguments
+from svr.train_main import resume_arguments, slurm_arguments
 from svr.training import TrainingStopped, latest_checkpoint, resume_config, run_folder_of, train
 
 from .test_train import compose_train, state, tiny_overrides
@@ -122,6 +122,29 @@ def test_run_folder_and_latest_checkpoint(tmp_path):
     assert resume_arguments([f"ckpt_path={run}"])[0] == f"hydra.run.dir='{run.resolve()}'"
     assert resume_arguments([f"ckpt_path={ckpt}", "hydra.run.dir=elsewhere"]) == []
     assert resume_arguments(["-m", f"ckpt_path={ckpt}"]) == []
+
+
+def test_slurm_batch_jobs_get_a_folder_their_requeue_resumes(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    env = {"SLURM_JOB_ID": "77", "SLURM_JOB_NAME": "train.sbatch"}
+    assert slurm_arguments(["seed=1"], env) == ["hydra.run.dir=outputs/train/slurm-77"]
+    assert slurm_arguments(["seed=1"], {**env, "SLURM_JOB_NAME": "interactive"}) == []  # salloc/srun --pty
+    assert slurm_arguments(["hydra.run.dir=x"], env) == []
+    assert slurm_arguments(["seed=1"], {}) == []
+    arr = {**env, "SLURM_ARRAY_JOB_ID": "70", "SLURM_ARRAY_TASK_ID": "3"}
+    assert slurm_arguments([], arr) == ["hydra.run.dir=outputs/train/slurm-70_3"]
+    requeued = {**env, "SLURM_RESTART_COUNT": "1"}
+    assert slurm_arguments([], requeued) == ["hydra.run.dir=outputs/train/slurm-77"]  # nothing to resume yet
+    run = tmp_path / "outputs" / "train" / "slurm-77"
+    (run / "coarse").mkdir(parents=True)
+    (run / "config.yaml").write_text("seed: 0\n")
+    assert slurm_arguments([], requeued) == ["hydra.run.dir=outputs/train/slurm-77",
+                                             "ckpt_path=outputs/train/slurm-77", "hydra.output_subdir=null"]
+    assert slurm_arguments([], env) == ["hydra.run.dir=outputs/train/slurm-77"]  # not requeued: no resume
+    hpc = run / "coarse" / "hpc_ckpt_1.ckpt"  # Lightning's SIGUSR1 checkpoint
+    hpc.write_bytes(b"x")
+    assert latest_checkpoint(run, ["coarse", "refine"]) == hpc
+    assert run_folder_of(hpc) == run.resolve()
 
 
 @pytest.mark.parametrize("steps", ["-1", "0", "abc"])
