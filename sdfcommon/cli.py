@@ -41,7 +41,6 @@ options (for an entry's own ``hydra.help.template``, which then names only the g
 """
 from __future__ import annotations
 
-import logging
 import os
 import sys
 import tempfile
@@ -61,8 +60,6 @@ USAGE_ERROR = 2
 # Files a run writes about itself (not results): cleaned after a failed run that wrote nothing else.
 RUN_RECORDS = ("config.yaml", "settings.json")
 _RECORD_BYTES = 1 << 20  # records above this are not restored (a config or settings file is a few KiB)
-
-log = logging.getLogger(__name__)
 
 
 class UserError(ValueError):
