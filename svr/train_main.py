@@ -109,7 +109,10 @@ def _main(cfg: DictConfig) -> float | None:
 
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
-    if cfg.get("ckpt_path") is None and (run_dir / "config.yaml").is_file():
+    from .distributed import launch_rank_is_zero
+
+    # Rank zero only: it writes config.yaml before the other processes of a DDP run start or look.
+    if cfg.get("ckpt_path") is None and launch_rank_is_zero() and (run_dir / "config.yaml").is_file():
         raise ValueError(f"hydra.run.dir={run_dir} already holds a training run: resume it with "
                          f"ckpt_path={run_dir}, or give another hydra.run.dir")
     cfg = resumed_config(cfg, run_dir, list(hydra_cfg.overrides.task))
