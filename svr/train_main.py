@@ -17,8 +17,9 @@ import sys
 from pathlib import Path
 from typing import Mapping, Optional, Sequence
 
-import hydra
 from omegaconf import DictConfig, OmegaConf
+
+from sdfcommon.cli import hydra_entry
 
 CONFIG_DIR = str(Path(__file__).resolve().parents[1] / "configs")
 
@@ -101,16 +102,16 @@ def slurm_arguments(argv: Sequence[str], environ: Mapping[str, str]) -> list[str
     return out
 
 
-@hydra.main(version_base="1.3", config_path=CONFIG_DIR, config_name="train")
-def _main(cfg: DictConfig) -> float | None:
+def run(cfg: DictConfig) -> float | None:
+    """Trains in hydra's run folder (see the module docstring); returns the last stage's best
+    validation IoU (for hydra sweepers)."""
     from hydra.core.hydra_config import HydraConfig
 
+    from .distributed import launch_rank_is_zero
     from .training import train
 
     hydra_cfg = HydraConfig.get()
     run_dir = Path(hydra_cfg.runtime.output_dir)
-    from .distributed import launch_rank_is_zero
-
     # Rank zero only: it writes config.yaml before the other processes of a DDP run start or look.
     if cfg.get("ckpt_path") is None and launch_rank_is_zero() and (run_dir / "config.yaml").is_file():
         raise ValueError(f"hydra.run.dir={run_dir} already holds a training run: resume it with "
@@ -123,11 +124,21 @@ def _main(cfg: DictConfig) -> float | None:
     return result.stages[-1].best_val_iou if result.stages else None
 
 
-def main() -> float | None:
-    """Trains; returns the last stage's best validation IoU (hydra sweepers can optimise it)."""
+_hydra_main = hydra_entry("sdfdiff-train", "train", run)
+
+
+def main() -> None:
+    """``python train.py`` / ``sdfdiff-train``: SLURM and resume settings (``slurm_arguments``,
+    ``resume_arguments``) added to the command line, then hydra and ``run`` under the shared error
+    handling of every entry point (``sdfcommon.cli``: a user's mistake is one line, exit status 2;
+    a SIGTERM exits 143)."""
+    argv = list(sys.argv)
     sys.argv.extend(slurm_arguments(sys.argv[1:], os.environ))
     sys.argv.extend(resume_arguments(sys.argv[1:]))
-    return _main()
+    try:
+        _hydra_main()
+    finally:
+        sys.argv[:] = argv
 
 
 if __name__ == "__main__":

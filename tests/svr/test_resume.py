@@ -203,3 +203,26 @@ def test_command_line_sigterm_exits_nonzero_and_resumes_in_place(tmp_path, data_
     assert OmegaConf.load(run / "config.yaml").stage.coarse.max_steps == 30
     assert_close(weights(whole / "coarse" / "checkpoints" / "final.ckpt"),
                  weights(run / "coarse" / "checkpoints" / "final.ckpt"), "command-line resume")
+
+
+def test_command_line_errors_are_one_line_and_leave_the_run_as_it_was(tmp_path, data_overrides):
+    """train.py on the shared entry-point error handling: a bad setting or a refused resume is one
+    line with exit status 2; a new run leaves nothing, a resumed run's folder is unchanged."""
+    bad = subprocess.run(_train_command([*tiny_overrides(data_overrides, 2), "stage.coarse.max_steps=-1",
+                                         f"hydra.run.dir={tmp_path / 'bad'}"]),
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 2
+    assert bad.stderr.strip().splitlines() == ["sdfdiff-train: error: stage.coarse.max_steps must be an integer "
+                                               ">= 1, got -1"]
+    assert not (tmp_path / "bad").exists()
+
+    run = tmp_path / "run"
+    train(compose_train(tiny_overrides(data_overrides, 1, "stage=coarse")), run)
+    before = {p: p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    refused = subprocess.run(_train_command([f"ckpt_path={run}", "model=small"]), cwd=tmp_path,
+                             capture_output=True, text=True, timeout=300)
+    assert refused.returncode == 2
+    lines = refused.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("sdfdiff-train: error: resuming a run keeps its config.yaml") \
+        and "model." in lines[0]
+    assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
