@@ -13,6 +13,7 @@ import signal
 import sys
 import threading
 from concurrent.futures import ProcessPoolExecutor
+from typing import Callable, Optional
 
 PARENT_POLL_S = 1.0
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -42,13 +43,20 @@ def die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="die-with-parent", daemon=True).start()
 
 
-def process_pool(workers: int) -> ProcessPoolExecutor:
+def process_pool(workers: int, initializer: Optional[Callable[..., None]] = None,
+                 initargs: tuple = ()) -> ProcessPoolExecutor:
     """A pool of ``workers`` spawned processes (no fork of a parent holding threads and CUDA) that
-    die with this process (``die_with_parent``)."""
+    die with this process (``die_with_parent``), each then running ``initializer(*initargs)``."""
     import multiprocessing
 
     return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=die_with_parent, initargs=(os.getpid(),))
+                               initializer=_start_worker, initargs=(os.getpid(), initializer, tuple(initargs)))
+
+
+def _start_worker(parent_pid: int, initializer: Optional[Callable[..., None]], initargs: tuple) -> None:
+    die_with_parent(parent_pid)
+    if initializer is not None:
+        initializer(*initargs)
 
 
 __all__ = ["process_pool", "die_with_parent", "PARENT_POLL_S"]

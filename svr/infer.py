@@ -51,7 +51,7 @@ from sdfcommon.checks import check_int
 from sdfcommon.cli import config_bool, config_int, config_ints, config_value, hydra_entry
 from sdfcommon.serialization import scrub_unsafe_advice
 
-from .data.nmr import NUM_VIEWS, images_to_float
+from .data.nmr import NUM_VIEWS, check_view_ids, images_to_float
 from .models.network import SVRNet, SVRPrediction
 
 log = logging.getLogger(__name__)
@@ -430,22 +430,6 @@ class Reconstruction:
     watertight: bool
     renders: Optional[torch.Tensor]
     views: tuple[int, ...]
-
-
-def check_view_ids(views: Optional[Sequence[int]], name: str = "views", allow_empty: bool = True) -> tuple[int, ...]:
-    """NMR view indices: distinct ints in [0, NUM_VIEWS) (the dataset's 24 views).
-
-    Raises:
-        ValueError naming ``name``.
-    """
-    if views is None or isinstance(views, (str, bytes)) or not isinstance(views, Sequence):
-        raise ValueError(f"{name} must be a list of NMR view indices in [0, {NUM_VIEWS}), got {views!r}")
-    out = tuple(check_int(v, f"{name}[{i}]", 0, NUM_VIEWS - 1) for i, v in enumerate(views))
-    if not out and not allow_empty:
-        raise ValueError(f"{name} must hold at least one NMR view index in [0, {NUM_VIEWS})")
-    if len(set(out)) != len(out):
-        raise ValueError(f"{name} must not repeat a view, got {list(views)!r}")
-    return out
 
 
 @torch.no_grad()

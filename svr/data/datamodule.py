@@ -37,7 +37,7 @@ from torch.utils.data import DataLoader, Dataset
 from torch.utils.data.distributed import DistributedSampler
 
 from ..distributed import RankInfo, shard_indices
-from .nmr import NUM_VIEWS, SPLITS, NMRDataset, prepare_nmr, resolve_categories
+from .nmr import NUM_VIEWS, SPLITS, NMRDataset, check_view_ids, prepare_nmr, resolve_categories
 from .procedural import (DEFAULT_SHADING, ProceduralSettings, default_workers, ensure_procedural_dataset,
                          load_shading, procedural_dataset_dir)
 from .types import ShadingModel, collate_batch
@@ -270,11 +270,7 @@ class EvalViews(Dataset):
     def __init__(self, objects: NMRDataset, views: Optional[Sequence[int]] = None,
                  max_objects_per_category: Optional[int] = None):
         self.objects = objects
-        self.views = list(range(NUM_VIEWS)) if views is None else [int(v) for v in views]
-        if not self.views or any(not 0 <= v < NUM_VIEWS for v in self.views):
-            raise ValueError(f"views must be a non-empty list of view ids in [0, {NUM_VIEWS}), got {views!r}")
-        if len(set(self.views)) != len(self.views):
-            raise ValueError(f"views must not repeat, got {views!r}")
+        self.views = list(range(NUM_VIEWS)) if views is None else list(check_view_ids(views, allow_empty=False))
         if max_objects_per_category is not None and max_objects_per_category < 1:
             raise ValueError(f"max_objects_per_category must be positive or None, got {max_objects_per_category}")
         keep = []

@@ -25,6 +25,8 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
+from sdfcommon.checks import check_int
+
 PathLike = Union[str, os.PathLike]
 
 NMR_CATEGORIES: tuple[tuple[str, str], ...] = (
@@ -451,7 +453,24 @@ class NMRDataset(torch.utils.data.Dataset):
         }
 
 
+def check_view_ids(views: Optional[Sequence[int]], name: str = "views", allow_empty: bool = True) -> tuple[int, ...]:
+    """NMR view indices: distinct ints in [0, NUM_VIEWS) (the dataset's 24 views).
+
+    Raises:
+        ValueError naming ``name``.
+    """
+    if views is None or isinstance(views, (str, bytes)) or not isinstance(views, Sequence):
+        raise ValueError(f"{name} must be a list of NMR view indices in [0, {NUM_VIEWS}), got {views!r}")
+    out = tuple(check_int(v, f"{name}[{i}]", 0, NUM_VIEWS - 1) for i, v in enumerate(views))
+    if not out and not allow_empty:
+        raise ValueError(f"{name} must hold at least one NMR view index in [0, {NUM_VIEWS})")
+    if len(set(out)) != len(out):
+        raise ValueError(f"{name} must not repeat a view, got {list(views)!r}")
+    return out
+
+
 __all__ = [
+    "check_view_ids",
     "NMR_CATEGORIES", "SPLITS", "NUM_VIEWS", "IMAGE_SHAPE", "VOXEL_SHAPE", "nmr_file", "read_npz_header",
     "check_npz", "open_prepared", "prepare_nmr", "read_metadata", "resolve_categories", "images_to_float",
     "NMRDataset",

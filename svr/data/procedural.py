@@ -475,11 +475,11 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
             for chunk in todo:
                 store(chunk, _make_chunk(chunk, settings, shading))
         else:
-            import multiprocessing
-            from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+            from concurrent.futures import FIRST_COMPLETED, wait
 
-            with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                     initializer=_worker_init) as pool:
+            from sdfcommon.processes import process_pool
+
+            with process_pool(workers, initializer=_worker_init) as pool:  # workers die with this process
                 queue = list(reversed(todo))
                 running = {}
                 try:

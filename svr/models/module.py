@@ -339,13 +339,10 @@ def load_checkpoint(path, map_location: str | torch.device = "cpu") -> dict[str,
     """
     from pathlib import Path
 
+    from sdfcommon.serialization import load_torch
+
     p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {p}")
-    try:
-        ckpt = torch.load(p, map_location=map_location, weights_only=True)
-    except Exception as err:  # torch raises many types for corrupt files
-        raise ValueError(f"{p}: not a readable checkpoint ({type(err).__name__}: {err})") from None
+    ckpt = load_torch(p, map_location)  # weights only; errors name the file, never advise unsafe loading
     if not isinstance(ckpt, dict) or CHECKPOINT_KEY not in ckpt or "state_dict" not in ckpt:
         raise ValueError(f"{p}: not an SDFDiff single-view checkpoint (no '{CHECKPOINT_KEY}' entry)")
     meta = ckpt[CHECKPOINT_KEY]

@@ -227,8 +227,10 @@ def test_bad_arguments_are_refused(fake_nmr, tmp_path):
         NMRDataModule(tmp_path / "missing")
     with pytest.raises(ValueError, match="views_per_sample"):
         NMRDataModule(root, views_per_sample=25)
-    with pytest.raises(ValueError, match="views must"):
+    with pytest.raises(ValueError, match=r"views\[0\] must be an integer in \[0, 23\], got 24"):
         EvalViews(NMRDataset(root, "val", categories=list(CATS)), views=[24])
+    with pytest.raises(ValueError, match="views must not repeat"):
+        EvalViews(NMRDataset(root, "val", categories=list(CATS)), views=[3, 3])
 
 
 # ------------------------------------------------------------------------------------ sampling

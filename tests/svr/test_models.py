@@ -2,6 +2,8 @@
 and bad input."""
 from __future__ import annotations
 
+import os
+
 from pathlib import Path
 
 import pytest
@@ -244,6 +246,10 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path):
     (tmp_path / "junk.ckpt").write_bytes(b"not a checkpoint")
     with pytest.raises(ValueError, match="junk.ckpt"):
         load_checkpoint(tmp_path / "junk.ckpt")
+    (tmp_path / "random.ckpt").write_bytes(os.urandom(4096))
+    with pytest.raises(ValueError, match="random.ckpt") as err:
+        load_checkpoint(tmp_path / "random.ckpt")
+    assert "weights_only" not in str(err.value)  # never the advice to load it unsafely
     torch.save({"state_dict": {}}, tmp_path / "other.ckpt")
     with pytest.raises(ValueError, match="other.ckpt"):
         load_checkpoint(tmp_path / "other.ckpt")
