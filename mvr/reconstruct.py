@@ -259,6 +259,7 @@ def reconstruct(
         spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution)
     seconds_target = time.perf_counter() - t0
     out.mkdir(parents=True, exist_ok=True)
+    outputs.remove_stale_temporaries(out)  # what a run killed mid-write (kill -9) left
     if not resume:
         for old in (out / "checkpoints").glob("level_*.pt") if (out / "checkpoints").is_dir() else []:
             old.unlink()

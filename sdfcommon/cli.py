@@ -301,6 +301,23 @@ def _report(prog: str, message: str) -> None:
     raise SystemExit(USAGE_ERROR)
 
 
+def report_user_errors(prog: str, work: Callable[[], Any]) -> Any:
+    """``work()`` with this module's error handling, for a command that is not a hydra main (e.g.
+    ``svr.demo``, argparse + hydra's compose API): a user's mistake, or a command line hydra cannot
+    compose, is one line ``<prog>: error: ...`` with exit status ``USAGE_ERROR``."""
+    from hydra.errors import ConfigCompositionException, OverrideParseException
+
+    try:
+        return work()
+    except (ConfigCompositionException, OverrideParseException) as err:
+        _report(prog, _one_line(str(err)))
+    except Exception as err:
+        message = user_message(err)
+        if message is None:
+            raise
+        _report(prog, message)
+
+
 GUARD_OVERRIDE = f"+hydra.callbacks.sdfcommon_run_folder._target_={__name__}.RunFolderGuard"
 
 
@@ -456,6 +473,6 @@ OmegaConf.register_new_resolver("first_set", _first_set, replace=True)
 OmegaConf.register_new_resolver("config_options", _config_options, replace=True)
 
 
-__all__ = ["hydra_entry", "run_task", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
+__all__ = ["hydra_entry", "run_task", "report_user_errors", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
            "RunFolderGuard", "RunFolderSnapshot", "config_value", "config_int",
            "config_float", "config_choice", "config_ints", "config_bool", "config_object", "CONFIG_DIR"]

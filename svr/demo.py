@@ -232,6 +232,15 @@ def demo_config(run_dir: Path, overrides: Sequence[str], fresh: bool):
 
 
 def main(argv: Optional[Sequence[str]] = None) -> dict:
+    """``python -m svr.demo`` (see the module docstring). A user's mistake (a bad override, a run
+    folder that cannot be written, ...) is one line with exit status 2 (``sdfcommon.cli``); a
+    SIGTERM exits 143 after saving a checkpoint."""
+    from sdfcommon.cli import report_user_errors
+
+    return report_user_errors("svr.demo", lambda: _main(argv))
+
+
+def _main(argv: Optional[Sequence[str]]) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--out", default="outputs/demo", help="output folder (default outputs/demo)")

@@ -47,6 +47,7 @@ import numpy as np
 import torch
 
 import renderer
+from mvr.outputs import remove_stale_temporaries
 from sdfcommon.checks import check_int
 from sdfcommon.cli import config_bool, config_int, config_ints, config_value, hydra_entry
 from sdfcommon.serialization import scrub_unsafe_advice
@@ -83,6 +84,7 @@ def ensure_output_dir(path: PathLike, argument: str = "output_dir") -> Path:
         os.unlink(probe)
     except OSError as err:
         raise ValueError(f"{argument}: cannot write to the folder {folder} ({err.strerror or err})") from None
+    remove_stale_temporaries(folder)  # what a run killed mid-write (kill -9) left
     return folder
 
 

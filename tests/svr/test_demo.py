@@ -96,3 +96,15 @@ def test_resume_point_and_eval_only_errors(tmp_path):
     assert resume_point(tmp_path, ["coarse", "refine"]) == (False, tmp_path / "coarse" / "checkpoints" / "last.ckpt")
     with pytest.raises(SystemExit, match="--eval-only needs a finished run"):
         main(["--out", str(tmp_path / "nothing"), "--eval-only", "--quiet"])
+
+
+@pytest.mark.parametrize("override, message", [("model=nosuch", "Could not find 'model/nosuch'"),
+                                               ("stage.coarse.max_steps=0", "stage.coarse.max_steps must be")])
+def test_demo_mistakes_are_one_line(tmp_path, capsys, override, message):
+    """svr.demo shares the entry points' error handling: one line, exit status 2, nothing written."""
+    with pytest.raises(SystemExit) as err:
+        main(["--out", str(tmp_path / "demo"), "--quiet", f"data.cache_dir={tmp_path / 'cache'}", override])
+    assert err.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("svr.demo: error:") and message in lines[0]
+    assert not (tmp_path / "demo").exists()

@@ -293,3 +293,16 @@ def test_inference_from_a_read_only_working_directory(tiny_run, tmp_path):
         cwd.chmod(0o755)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (tmp_path / "out" / "disc_sdf.npz").is_file() and list(cwd.iterdir()) == []
+
+
+def test_output_folder_loses_what_a_killed_write_left(tmp_path):
+    """Issue 17 item 5: stale atomic-write temporaries in an output folder are removed when a command
+    writes into it again."""
+    from svr.infer import ensure_output_dir
+
+    left = tmp_path / ".chair_mesh.ply.0a1b2c3d.tmp"
+    left.write_bytes(b"half a mesh")
+    mine = tmp_path / "chair.ply"
+    mine.write_bytes(b"a mesh")
+    assert ensure_output_dir(tmp_path) == tmp_path
+    assert not left.exists() and mine.read_bytes() == b"a mesh"
