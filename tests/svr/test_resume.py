@@ -171,7 +171,6 @@ def _train_command(overrides: list[str]) -> list[str]:
     return [sys.executable, str(REPO / "train.py"), *overrides]
 
 
-@pytest.mark.slow
 def test_command_line_sigterm_exits_nonzero_and_resumes_in_place(tmp_path, data_overrides):
     """train.py killed with SIGTERM at random moments exits 143 each time; resuming with the README's
     command continues in the same folder, with its config, and ends where an uninterrupted run ends."""
