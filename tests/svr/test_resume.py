@@ -225,3 +225,20 @@ def test_command_line_errors_are_one_line_and_leave_the_run_as_it_was(tmp_path, 
     assert len(lines) == 1 and lines[0].startswith("sdfdiff-train: error: resuming a run keeps its config.yaml") \
         and "model." in lines[0]
     assert {p: p.read_bytes() for p in run.rglob("*") if p.is_file()} == before
+
+
+def test_training_console_has_no_known_noise(tmp_path, data_overrides):
+    """Issue 17 item 17: a training run prints no cloud-logger advertisement, no deprecation from
+    inside Lightning, no warning about the stages' deliberately frozen (eval-mode) modules, and no
+    weights_only notice; resuming adds no warnings about its own folder."""
+    overrides = [*tiny_overrides(data_overrides, 2, "stage.schedule=[coarse,refine]"), "trainer.enable_model_summary=false"]
+    first = subprocess.run(_train_command([*overrides, f"hydra.run.dir={tmp_path / 'run'}"]), cwd=tmp_path,
+                           capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stderr[-2000:]
+    again = subprocess.run(_train_command([f"ckpt_path={tmp_path / 'run'}", "stage.refine.max_steps=3"]),
+                           cwd=tmp_path, capture_output=True, text=True, timeout=300)  # resume to train longer
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert "with a changed setting: stage.refine.max_steps: 2 -> 3" in again.stdout + again.stderr  # said loudly
+    for out in (first.stdout + first.stderr, again.stdout + again.stderr):
+        for noise in ("Tip:", "LeafSpec", "in eval mode", "weights_only", "exists and is not empty"):
+            assert noise not in out, f"{noise!r} printed"
