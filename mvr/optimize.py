@@ -17,7 +17,9 @@ import torch
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 
-from .losses import eikonal_loss, image_loss, laplacian_loss, silhouette_loss
+from sdfcommon.regularisers import band_regularisers
+
+from .losses import image_loss, silhouette_loss
 
 PerLevel = Union[int, float, None, Sequence[Union[int, float, None]]]
 
@@ -199,11 +201,19 @@ class ViewLosses:
         return tuple(torch.cat([p[k] for p in parts]) for k in range(3))  # type: ignore[return-value]
 
     def regulariser(self, grid: SDFGrid) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Weighted eikonal + Laplacian terms, and the two unweighted terms."""
+        """Weighted eikonal + Laplacian terms, and the two unweighted terms: the shared regularisers
+        (``sdfcommon.regularisers``) over every interior vertex of the grid (``mu=None``)."""
         s = self.settings
-        eik = eikonal_loss(grid) if s.eikonal_weight > 0 else grid.values.new_zeros(())
-        lap = laplacian_loss(grid) if s.laplacian_weight > 0 else grid.values.new_zeros(())
+        eik, lap = band_regularisers(grid.values, cube_voxel_size(grid), mu=None)
         return s.eikonal_weight * eik + s.laplacian_weight * lap, eik, lap
+
+
+def cube_voxel_size(grid: SDFGrid) -> float:
+    """The grid's sample spacing, the same along the three axes (mvr's grids are cubes)."""
+    h = [float(v) for v in grid.voxel_size]
+    if max(h) - min(h) > 1e-6 * max(h):
+        raise ValueError(f"the regularisers need equal spacing along x, y, z; the grid's is {h}")
+    return h[0]
 
 
 def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int = 0, progress: bool = True,
@@ -310,8 +320,6 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
     final = SDFGrid(values.detach().clone(), lo, hi)
     with torch.no_grad():
         _, eik, lap = losses.regulariser(final)
-        if settings.eikonal_weight == 0:
-            eik = eikonal_loss(final)
     report = LevelReport(
         level=level, resolution=grid.resolution[0], image_size=losses.cameras.image_size[0],
         passes=len(history), updates=updates, seconds=time.perf_counter() - t_start,

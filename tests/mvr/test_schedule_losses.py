@@ -6,8 +6,7 @@ import math
 import pytest
 import torch
 
-from mvr import (OptimSettings, Schedule, eikonal_loss, fill_cavities, image_loss, laplacian_loss,
-                 rule_image_size, silhouette_loss)
+from mvr import OptimSettings, Schedule, fill_cavities, image_loss, rule_image_size, silhouette_loss
 from renderer import Cameras, SDFGrid
 
 
@@ -56,20 +55,6 @@ def test_losses():
         image_loss(a, b[:1])
     with pytest.raises(ValueError, match="silhouette"):
         silhouette_loss(a, b)
-
-
-def test_eikonal_and_laplacian():
-    plane = SDFGrid.from_function(lambda p: p[..., 0] + 0.5 * p[..., 1], 16)
-    # |grad| = sqrt(1.25) everywhere: (1 - 1.25)^2.
-    assert float(eikonal_loss(plane)) == pytest.approx(0.0625, rel=1e-4)
-    assert float(laplacian_loss(plane)) == pytest.approx(0.0, abs=1e-8)
-    unit = SDFGrid.from_function(lambda p: p[..., 2] - 0.1, 16)
-    assert float(eikonal_loss(unit)) == pytest.approx(0.0, abs=1e-8)
-    sphere = SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 32)
-    assert float(eikonal_loss(sphere)) < 0.01  # only the kink at the centre deviates
-    bowl = SDFGrid.from_function(lambda p: (p * p).sum(-1), 16)  # Laplacian 6, in voxel units 6 h
-    h = 2.0 / 15
-    assert float(laplacian_loss(bowl)) == pytest.approx((6 * h) ** 2, rel=1e-4)
 
 
 def test_fill_cavities():
