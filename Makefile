@@ -36,7 +36,7 @@ demo: install
 	$(PY) -m svr.demo --out outputs/demo
 
 bench: install
-	$(PY) benchmarks/bench_renderer.py
+	$(PY) -m benchmarks.renderer_speed
 
 clean:
 	rm -rf $(VENV) outputs .pytest_cache

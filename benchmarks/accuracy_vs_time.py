@@ -1,18 +1,18 @@
 """What accuracy costs in time: the study behind docs/accuracy_vs_time.md, in one command.
 
-    python -m benchmarks.study                          # all parts, ~20 min on 2 CPU cores
-    python -m benchmarks.study --parts mvr,svr          # rerun some parts; the others' last results stay
-    python -m benchmarks.study --quick                  # toy sizes (a minute): checks the code paths
-    python -m benchmarks.study --parts svr --svr-steps 2000,500   # a longer training budget
-    python -m benchmarks.study --report-only            # reassemble the report from the kept sections
+    python -m benchmarks.accuracy_vs_time                          # all parts, ~20 min on 2 CPU cores
+    python -m benchmarks.accuracy_vs_time --parts mvr,svr          # rerun some parts; the others' last results stay
+    python -m benchmarks.accuracy_vs_time --quick                  # toy sizes (a minute): checks the code paths
+    python -m benchmarks.accuracy_vs_time --parts svr --svr-steps 2000,500   # a longer training budget
+    python -m benchmarks.accuracy_vs_time --report-only            # reassemble the report from the kept sections
 
 Three parts, each a table, a plot (Pareto front marked, default highlighted) and a reading:
 
-* renderer (benchmarks/study_renderer.py): hit threshold, maximum steps, intersection mode, grid and
+* renderer (benchmarks/accuracy_vs_time_renderer.py): hit threshold, maximum steps, intersection mode, grid and
   image resolution, effects: image error against a high-accuracy render, and time per frame, on the
   fused CPU kernel (and on CUDA where it runs: a second section);
-* mvr (benchmarks/study_mvr.py): multi-view reconstruction error against time for the schedule;
-* svr (benchmarks/study_svr.py): validation IoU against training time for the model width, the
+* mvr (benchmarks/accuracy_vs_time_mvr.py): multi-view reconstruction error against time for the schedule;
+* svr (benchmarks/accuracy_vs_time_svr.py): validation IoU against training time for the model width, the
   refiner and the supervised views.
 
 Each part's section is kept in ``<work>/sections/<part>.md`` (with ``<part>.json``: when and how
@@ -60,18 +60,18 @@ def run_part(part: str, docs: Path, work: Path, quick: bool, cuda: bool, svr_ste
              progress: bool) -> str:
     """Runs one part; returns its markdown section (its plots are written into ``docs``)."""
     if part == "renderer":
-        from benchmarks import study_renderer
+        from benchmarks import accuracy_vs_time_renderer
 
-        return "\n".join(study_renderer.run(docs, quick=quick, device=d, progress=progress)
+        return "\n".join(accuracy_vs_time_renderer.run(docs, quick=quick, device=d, progress=progress)
                          for d in renderer_devices(cuda))
     if part == "mvr":
-        from benchmarks import study_mvr
+        from benchmarks import accuracy_vs_time_mvr
 
-        return study_mvr.run(docs, work, quick=quick, progress=progress)
+        return accuracy_vs_time_mvr.run(docs, work, quick=quick, progress=progress)
     if part == "svr":
-        from benchmarks import study_svr
+        from benchmarks import accuracy_vs_time_svr
 
-        return study_svr.run(docs, work, quick=quick, steps=svr_steps, progress=progress)
+        return accuracy_vs_time_svr.run(docs, work, quick=quick, steps=svr_steps, progress=progress)
     raise ValueError(f"part must be one of {PARTS}, got {part!r}")
 
 
@@ -108,14 +108,14 @@ def write_report(docs: Path, work: Path) -> Path:
             bodies.append(md.read_text())
         else:
             rows.append(f"| {TITLES[part]} | not run | | | | |")
-            bodies.append(f"## {TITLES[part]}\n\nNot run yet: `python -m benchmarks.study {COMMANDS[part]}`.\n")
+            bodies.append(f"## {TITLES[part]}\n\nNot run yet: `python -m benchmarks.accuracy_vs_time {COMMANDS[part]}`.\n")
     text = "\n".join([
         "# Accuracy against time",
         "",
         "What each setting costs and what it buys, measured on one machine: the renderer's march and "
         "intersection settings, resolutions and effects; the multi-view reconstruction schedule; the "
         "single-view network, refiner and supervision. Regenerate with "
-        "`python -m benchmarks.study` (all parts, about 20 minutes on 2 CPU cores) or some parts with "
+        "`python -m benchmarks.accuracy_vs_time` (all parts, about 20 minutes on 2 CPU cores) or some parts with "
         "`--parts renderer,mvr,svr` (the report keeps the other parts' latest results).",
         "",
         *(["**This holds `--quick` results: toy sizes that only check the code paths; their numbers mean "
@@ -163,7 +163,7 @@ def main(argv: Optional[list[str]] = None) -> None:
     args = ap.parse_args(argv)
     try:
         parts = parse_parts(args.parts)
-        from benchmarks.study_svr import parse_steps
+        from benchmarks.accuracy_vs_time_svr import parse_steps
 
         svr_steps = parse_steps(args.svr_steps)
     except ValueError as exc:

@@ -19,7 +19,7 @@ footprint, 256 steps, conservative intersection, all effects) and measures, on t
   this process's CPU time (with one thread it is the wall time on an idle core; the wall time is
   in the table too).
 
-Run by ``python -m benchmarks.study --parts renderer`` (``--docs DIR`` to keep docs/ as it is).
+Run by ``python -m benchmarks.accuracy_vs_time --parts renderer`` (``--docs DIR`` to keep docs/ as it is).
 """
 from __future__ import annotations
 
@@ -29,7 +29,7 @@ from typing import Callable, Optional
 
 import torch
 
-from benchmarks.bench_renderer import median_times_ms
+from benchmarks.renderer_speed import median_times_ms
 from benchmarks.report import Point, cheapest_within, fmt_value, progress_log, tradeoff_section
 from renderer import Cameras, DirectionalLight, SDFGrid, Scene, TraceSettings, render
 from renderer.demo import torus_and_sphere

@@ -9,7 +9,7 @@ after its refine stage (refiner on). A callback (``StudyClock``) logs each valid
 the time spent, so the training time excludes validation and the plot shows each run's IoU
 over time.
 
-Run by ``python -m benchmarks.study --parts svr`` (``--docs DIR`` to keep docs/ as it is).
+Run by ``python -m benchmarks.accuracy_vs_time --parts svr`` (``--docs DIR`` to keep docs/ as it is).
 """
 from __future__ import annotations
 
@@ -115,7 +115,7 @@ def run_overrides(run: Run, data: Sequence[str], steps: tuple[int, int], val_eve
             f"trainer.val_check_interval={val_every}", "trainer.log_every_n_steps=10",
             "trainer.enable_progress_bar=false", "trainer.enable_model_summary=false", "logger=csv",
             "callbacks.progress_bar=null", "callbacks.image_logger=null", "callbacks.last_checkpoint=null",
-            "callbacks.lr_monitor=null", "+callbacks.study_clock._target_=benchmarks.study_svr.StudyClock",
+            "callbacks.lr_monitor=null", "+callbacks.study_clock._target_=benchmarks.accuracy_vs_time_svr.StudyClock",
             f"+callbacks.study_clock.path={clock}", *toy]
 
 
@@ -222,7 +222,7 @@ def run(out_dir: Path, work: Path, quick: bool = False, steps: Optional[tuple[in
         f"(1 thread) without the validations; the grey lines are each run's validations over time. At this budget "
         f"the networks are early in training, so the IoUs are low, and with few validation objects the smaller "
         f"differences between settings are within the noise: read the costs with confidence and close IoUs "
-        f"with care. A longer budget: `python -m benchmarks.study --parts svr --svr-steps 2000,500`.")
+        f"with care. A longer budget: `python -m benchmarks.accuracy_vs_time --parts svr --svr-steps 2000,500`.")
     section = tradeoff_section(
         points, COLUMNS, out_dir / f"{prefix}.png", title="Single-view reconstruction: validation IoU against "
         "training time", setting_name="setting", xlabel="training CPU seconds (without validation)",

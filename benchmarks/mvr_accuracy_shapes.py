@@ -1,11 +1,12 @@
 """Multi-view reconstruction benchmark: the torus (the paper's 0.015637) and other shapes, each
-reconstructed by the user-facing command with the default settings of configs/mvr.yaml.
+reconstructed with the default settings of ``python -m mvr`` (configs/mvr.yaml).
 
-    python -m benchmarks.mvr_shapes                      # torus double_torus blob rounded_box
-    python -m benchmarks.mvr_shapes torus --extra optim.max_passes=8
+    python -m benchmarks.mvr_accuracy_shapes                      # torus double_torus blob rounded_box
+    python -m benchmarks.mvr_accuracy_shapes torus --extra optim.max_passes=8
 
-Each shape runs ``python -m mvr target=<shape> out_dir=<work>/<shape>`` in a subprocess, one at
-a time (a finished run is reused: delete its folder to redo it); the table goes to
+Each shape runs as ``python -m mvr target=<shape> out_dir=<work>/<shape>`` would, in this process
+(``benchmarks.report.run_mvr``), one at a time (a finished run is reused: delete its folder to redo
+it); the table goes to
 docs/mvr_shapes.md and each run's views.png to docs/mvr_views_<shape>.png.
 """
 from __future__ import annotations
@@ -14,29 +15,23 @@ import argparse
 import json
 import os
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
-from benchmarks.report import atomic_write_text, machine_info
+from benchmarks.report import atomic_write_text, machine_info, run_mvr
 
-ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_SHAPES = ("torus", "double_torus", "blob", "rounded_box")
 PAPER = {"torus": 0.015637}
 
 
-def run_shape(shape: str, out_dir: Path, extra: list[str]) -> tuple[dict, list[str], float]:
-    """Runs (or reuses) one reconstruction; returns its metrics, the command and the load average."""
-    cmd = [sys.executable, "-m", "mvr", f"target={shape}", f"out_dir={out_dir}", "progress=false", *extra]
+def run_shape(shape: str, out_dir: Path, extra: list[str]) -> tuple[dict, float]:
+    """Runs (or reuses) one reconstruction; returns its metrics and the load average."""
     metrics_file = out_dir / "metrics.json"
     load = os.getloadavg()[0]
     if not metrics_file.is_file():
-        proc = subprocess.run(cmd, cwd=ROOT, text=True, capture_output=True)
-        if proc.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-3000:]}")
+        run_mvr(shape, out_dir, extra)
         load = (load + os.getloadavg()[0]) / 2
-    return json.loads(metrics_file.read_text()), cmd, load
+    return json.loads(metrics_file.read_text()), load
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -46,10 +41,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     ap.add_argument("--extra", nargs="*", default=[], help="hydra overrides passed to every run")
     args = ap.parse_args(argv)
+    from mvr import configure_runtime
+
+    configure_runtime(threads=1)  # configs/mvr.yaml's runtime, as the command sets it
     rows = []
     for shape in args.shapes:
         t0 = time.perf_counter()
-        m, cmd, load = run_shape(shape, args.work / shape, args.extra)
+        m, load = run_shape(shape, args.work / shape, args.extra)
         print(f"{shape}: hausdorff_rel {m['hausdorff_rel']}, chamfer_rel {m['chamfer_rel']}, "
               f"{m['seconds']:.0f}s (this call {time.perf_counter() - t0:.0f}s)", flush=True)
         views = args.work / shape / "views.png"
@@ -60,7 +58,7 @@ def main(argv: list[str] | None = None) -> None:
     lines = [
         "# Multi-view reconstruction benchmark",
         "",
-        "`python -m benchmarks.mvr_shapes`: each shape is reconstructed by "
+        "`python -m benchmarks.mvr_accuracy_shapes`: each shape is reconstructed with the settings of "
         "`python -m mvr target=<shape> out_dir=...`" + (f" with `{' '.join(args.extra)}`" if args.extra else "")
         + " (the defaults of `configs/mvr.yaml`: sphere at 8^3, levels 8/16/32/64, the paper's image "
         "rule, 26 views). Errors are relative to the target's bounding-box diagonal, from 50k surface "

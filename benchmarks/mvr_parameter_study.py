@@ -2,11 +2,11 @@
 
 One command per study, each writing a markdown table (error and time per setting) and a plot:
 
-    python -m benchmarks.mvr_study initial_resolution   # docs/mvr_initial_resolution.{md,png}
-    python -m benchmarks.mvr_study levels               # docs/mvr_levels.{md,png}
-    python -m benchmarks.mvr_study image_resolution     # docs/mvr_image_resolution.{md,png}
-    python -m benchmarks.mvr_study noise                # docs/mvr_noise.{md,png}
-    python -m benchmarks.mvr_study all
+    python -m benchmarks.mvr_parameter_study initial_resolution   # docs/mvr_initial_resolution.{md,png}
+    python -m benchmarks.mvr_parameter_study levels               # docs/mvr_levels.{md,png}
+    python -m benchmarks.mvr_parameter_study image_resolution     # docs/mvr_image_resolution.{md,png}
+    python -m benchmarks.mvr_parameter_study noise                # docs/mvr_noise.{md,png}
+    python -m benchmarks.mvr_parameter_study all
 
 Every run uses the settings of ``python -m mvr`` (configs/mvr.yaml) with a few hydra overrides:
 the setting studied, and the reduced scale (so a study runs in tens of minutes on 2 CPU cores):
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from benchmarks.report import Point, atomic_write_text, machine_info, markdown_table, plot_tradeoff
+from benchmarks.report import Point, atomic_write_text, machine_info, markdown_table, plot_tradeoff, run_mvr
 
 
 @dataclass(frozen=True)
@@ -78,13 +78,7 @@ def _studies() -> dict[str, Study]:
 
 def run_setting(target: str, setting: Setting, out_dir: Path, passes: int) -> dict:
     """Runs one reconstruction: configs/mvr.yaml + the reduced scale + the setting's overrides."""
-    from mvr import reconstruct
-    from mvr.__main__ import compose_config, reconstruct_kwargs
-
-    overrides = [f"target={target}", f"out_dir={out_dir}", f"optim.max_passes={passes}", "progress=false",
-                 "evaluation.samples=20000", *setting.overrides]
-    cfg = compose_config(overrides)
-    return reconstruct(target, out_dir, **reconstruct_kwargs(cfg)).metrics
+    return run_mvr(target, out_dir, [f"optim.max_passes={passes}", "evaluation.samples=20000", *setting.overrides])
 
 
 def run_study(study: Study, target: str, work: Path, docs: Path, passes: int,
@@ -112,7 +106,7 @@ def run_study(study: Study, target: str, work: Path, docs: Path, passes: int,
     md = "\n".join([
         f"# Multi-view reconstruction study: {study.title.lower()}",
         "",
-        f"`python -m benchmarks.mvr_study {study.name}`: target `{target}`, the defaults of "
+        f"`python -m benchmarks.mvr_parameter_study {study.name}`: target `{target}`, the defaults of "
         f"`configs/mvr.yaml` except the setting varied and at most {passes} passes per level (reduced "
         f"scale). Errors are relative to the target's bounding-box diagonal (20k surface samples per "
         f"mesh); times include making the target images and the evaluation, on 2 CPU cores shared "

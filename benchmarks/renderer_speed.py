@@ -1,10 +1,10 @@
 """Renderer speed: the PyTorch reference march against the fused kernel, alone and inside a full
 differentiable render (forward + backward), in one run.
 
-    python benchmarks/bench_renderer.py            # full run, writes docs/bench_renderer.md
-    python benchmarks/bench_renderer.py --quick    # fewer repeats (a smoke run)
-    python benchmarks/bench_renderer.py --torch-threads 0 --out docs/bench_renderer_torch_all.md
-    python benchmarks/bench_renderer.py --device cuda   # on a GPU: writes docs/bench_renderer_cuda.md
+    python -m benchmarks.renderer_speed            # full run, writes docs/bench_renderer.md
+    python -m benchmarks.renderer_speed --quick    # fewer repeats (a smoke run)
+    python -m benchmarks.renderer_speed --torch-threads 0 --out docs/bench_renderer_torch_all.md
+    python -m benchmarks.renderer_speed --device cuda   # on a GPU: writes docs/bench_renderer_cuda.md
 
 Threads: numba uses every core (the fused kernel is parallel); torch uses one thread unless
 ``--torch-threads`` says otherwise (0: torch's default, every core). On the shared 2-core machine
@@ -49,15 +49,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import torch
+
+import renderer
+import renderer.kernels
+from mvr.outputs import write_text
+from renderer import Cameras, Scene, SDFGrid, render, sphere_trace
+
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-import torch  # noqa: E402
-
-import renderer  # noqa: E402
-import renderer.kernels  # noqa: E402
-from mvr.outputs import write_text  # noqa: E402
-from renderer import Cameras, Scene, SDFGrid, render, sphere_trace  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -219,7 +218,8 @@ def measure_memory(cfg: Config, backend: str) -> dict[str, float | str]:
 
 def memory_in_subprocess(cfg: Config, backend: str, threads: int | None,
                          torch_threads: int | None = None) -> dict[str, float | str]:
-    cmd = [sys.executable, __file__, "--memory-probe", f"{cfg.image},{cfg.batch},{cfg.grid}", backend]
+    cmd = [sys.executable, "-m", "benchmarks.renderer_speed", "--memory-probe", f"{cfg.image},{cfg.batch},{cfg.grid}",
+           backend]
     if threads:
         cmd += ["--threads", str(threads)]
     if torch_threads is not None:
@@ -393,7 +393,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 def _command(argv: list[str] | None) -> str:
-    return " ".join(["python benchmarks/bench_renderer.py", *(argv if argv is not None else sys.argv[1:])])
+    return " ".join(["python -m benchmarks.renderer_speed", *(argv if argv is not None else sys.argv[1:])])
 
 
 def write_cuda_report(path: Path, rows: list[tuple[Config, dict]], repeats: int, argv: list[str] | None,

@@ -1,5 +1,5 @@
-"""Shared pieces of the accuracy-versus-time study: Pareto fronts, plots, tables, a reading of
-the results, machine info."""
+"""Shared pieces of the benchmarks: Pareto fronts, plots, tables, a reading of the results,
+machine info, and the one way they run a multi-view reconstruction (``run_mvr``)."""
 from __future__ import annotations
 
 import io
@@ -41,6 +41,22 @@ def atomic_write_text(path: Path, text: str) -> None:
     from mvr.outputs import write_text
 
     write_text(path, text)
+
+
+def run_mvr(target: str, out_dir: Path, overrides: Sequence[str] = ()) -> dict:
+    """One multi-view reconstruction in this process, with the settings of
+    ``python -m mvr target=<target> out_dir=<out_dir> progress=false <overrides>`` (configs/mvr.yaml,
+    composed and instantiated as the command does). The caller sets the process-wide runtime first
+    (``mvr.configure_runtime``, as the command does from ``runtime.*``).
+
+    Returns:
+        the run's metrics (what it writes to ``<out_dir>/metrics.json``).
+    """
+    from mvr import reconstruct
+    from mvr.__main__ import compose_config, reconstruct_kwargs
+
+    cfg = compose_config([f"target={target}", f"out_dir={out_dir}", "progress=false", *overrides])
+    return reconstruct(target, out_dir, **reconstruct_kwargs(cfg)).metrics
 
 
 def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, ylabel: str,

@@ -1,9 +1,9 @@
 """One single-view training step, phase by phase: where the time and the memory of a step go.
 
-    python benchmarks/bench_train_step.py                          # experiment=demo, writes docs/bench_train_step.md
-    python benchmarks/bench_train_step.py model=paper data.batch_size=8 --no-write
-    python benchmarks/bench_train_step.py --device cuda            # on a GPU: docs/bench_train_step_cuda.md
-    python benchmarks/bench_train_step.py --baseline ../old-checkout   # before/after, same run
+    python -m benchmarks.train_step_speed                          # experiment=demo, writes docs/bench_train_step.md
+    python -m benchmarks.train_step_speed model=paper data.batch_size=8 --no-write
+    python -m benchmarks.train_step_speed --device cuda            # on a GPU: docs/bench_train_step_cuda.md
+    python -m benchmarks.train_step_speed --baseline ../old-checkout   # before/after, same run
 
 Positional arguments are hydra overrides of ``configs/train.yaml`` (default ``experiment=demo``).
 The data module, network and loss are built from that config exactly as ``train.py`` builds them,
@@ -276,6 +276,8 @@ def _merge(runs: list[dict]) -> dict:
 
 
 def _subprocess(code: Path, overrides: list[str], args) -> dict:
+    # This file by its path, not ``-m``: the child imports svr, renderer and mvr from ``code`` only
+    # (``_use_only``), and a baseline checkout need not have this benchmark.
     cmd = [sys.executable, str(HERE), "--code", str(code), "--json", "--device", args.device,
            "--repeats", str(args.repeats), *overrides]
     env = dict(os.environ, PYTHONPATH=str(code))
@@ -327,7 +329,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         res = _subprocess(ROOT, overrides, args) if args.code is None else run_phases(overrides, args.device,
                                                                                       args.repeats)
         body = f"{_setup_line(res)}.\n\n{table(res)}\n"
-    command = "python benchmarks/bench_train_step.py " + " ".join(argv)
+    command = "python -m benchmarks.train_step_speed " + " ".join(argv)
     text = (f"# Single-view training step, phase by phase\n\n`{command.strip()}` "
             f"(config overrides: `{' '.join(overrides)}`; medians of {args.repeats} calls"
             + (f", median over {args.rounds} alternating rounds per checkout" if args.baseline else "")

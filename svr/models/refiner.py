@@ -183,7 +183,7 @@ class BlockRefiner(nn.Module):
 
     Why: on a CPU a 3D conv with a handful of channels on a 32^3 grid runs far below the machine's
     arithmetic speed, and the batch norm and ReLU around it cost as much again; the same voxels
-    as fewer, wider sites at 16^3 run several times faster (``benchmarks/bench_train_step.py``). What
+    as fewer, wider sites at 16^3 run several times faster (``benchmarks/train_step_speed.py``). What
     it gives up is detail finer than two voxels of a 64^3 grid, which the benchmark's 32^3 voxel
     IoU does not see; the coarse decoder's own output is no finer (``SDFDecoder.head_stride``).
 

@@ -1,4 +1,4 @@
-"""The accuracy-versus-time study (benchmarks/study*.py): its helpers, and every part's code path
+"""The accuracy-versus-time study (benchmarks/accuracy_vs_time*.py): its helpers, and every part's code path
 at toy sizes through the one command's driver (no timing asserted). The full study is `slow`."""
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from benchmarks import study, study_renderer, study_svr
+from benchmarks import accuracy_vs_time, accuracy_vs_time_renderer, accuracy_vs_time_svr
 from benchmarks.report import Point, cheapest_within, markdown_table, pareto_front, reading
 
 
@@ -37,18 +37,18 @@ def test_reading_names_the_front_the_cheap_choice_and_the_default():
 
 
 def test_bad_arguments_name_themselves():
-    assert study.parse_parts("svr, renderer") == ("renderer", "svr")
+    assert accuracy_vs_time.parse_parts("svr, renderer") == ("renderer", "svr")
     for bad in ("", "renderer,gpu"):
         with pytest.raises(ValueError, match="parts"):
-            study.parse_parts(bad)
-    assert study_svr.parse_steps("30,10") == (30, 10) and study_svr.parse_steps(None) is None
+            accuracy_vs_time.parse_parts(bad)
+    assert accuracy_vs_time_svr.parse_steps("30,10") == (30, 10) and accuracy_vs_time_svr.parse_steps(None) is None
     for bad in ("30", "a,b", "0,5"):
         with pytest.raises(ValueError, match="steps"):
-            study_svr.parse_steps(bad)
+            accuracy_vs_time_svr.parse_steps(bad)
     with pytest.raises(ValueError, match="views"):
-        study_svr.Run("x", views=25)
+        accuracy_vs_time_svr.Run("x", views=25)
     with pytest.raises(ValueError, match="reps"):
-        study_renderer.Renderer("cpu", "auto", reference_grid=16, reps=0)
+        accuracy_vs_time_renderer.Renderer("cpu", "auto", reference_grid=16, reps=0)
 
 
 def test_timeline_subtracts_the_validations(tmp_path):
@@ -58,39 +58,39 @@ def test_timeline_subtracts_the_validations(tmp_path):
                "val_wall": 2.0, "val_cpu": 1.0},
               {"event": "end", "stage": "coarse", "step": 4, "wall": 108.0, "cpu": 16.0}]
     path.write_text("".join(json.dumps(e) + "\n" for e in events))
-    got = study_svr.read_timeline(path, start_wall=100.0, start_cpu=10.0)
+    got = accuracy_vs_time_svr.read_timeline(path, start_wall=100.0, start_cpu=10.0)
     assert [e["train_cpu"] for e in got] == [1.0, 3.0, 5.0]
     assert [e["train_wall"] for e in got] == [1.0, 3.0, 6.0]
 
 
 def test_every_part_runs_at_toy_size_into_one_report(tmp_path):
     docs, work = tmp_path / "docs", tmp_path / "work"
-    path = study.run_parts(study.PARTS, docs, work, quick=True, cuda=False, progress=False)
+    path = accuracy_vs_time.run_parts(accuracy_vs_time.PARTS, docs, work, quick=True, cuda=False, progress=False)
     md = path.read_text()
-    assert path == docs / study.REPORT and "`--quick` results" in md
+    assert path == docs / accuracy_vs_time.REPORT and "`--quick` results" in md
     for heading in ("## Renderer", "## Multi-view reconstruction", "## Single-view reconstruction", "## Machine"):
         assert heading in md
-    pngs = [f"study_renderer_{name}.png" for name in study_renderer.sweeps(True)] + ["study_mvr.png", "study_svr.png"]
+    pngs = [f"study_renderer_{name}.png" for name in accuracy_vs_time_renderer.sweeps(True)] + ["study_mvr.png", "study_svr.png"]
     for png in pngs:
         assert (docs / png).stat().st_size > 1000 and f"({png})" in md
     assert md.count("(default)") >= len(pngs) and md.count("**What to choose.**") == len(pngs)
     assert "Exact against conservative" in md and "load average" in md and "not run" not in md
     # A point per stage of each training run: after the coarse stage and after the refine stage.
     svr_rows = [line for line in md.splitlines() if line.startswith(("| tiny ", "| **tiny "))]
-    assert len(svr_rows) == sum(1 if r.coarse_only else 2 for r in study_svr.runs(True))
+    assert len(svr_rows) == sum(1 if r.coarse_only else 2 for r in accuracy_vs_time_svr.runs(True))
     assert not list(docs.glob("*.tmp")) and not list(docs.glob(".*.tmp"))
 
     # The report is rebuilt from the kept sections; a part never run says how to run it.
     (work / "sections" / "svr.md").unlink()
-    study.main(["--report-only", "--docs", str(docs), "--work", str(work)])
+    accuracy_vs_time.main(["--report-only", "--docs", str(docs), "--work", str(work)])
     md = path.read_text()
-    assert "## Renderer" in md and "Not run yet: `python -m benchmarks.study --parts svr`" in md
+    assert "## Renderer" in md and "Not run yet: `python -m benchmarks.accuracy_vs_time --parts svr`" in md
 
 
 @pytest.mark.slow
 def test_full_study(tmp_path):
     """The whole study as the report's command runs it (about 25 minutes on 2 cores)."""
-    path = study.run_parts(study.PARTS, tmp_path / "docs", tmp_path / "work", cuda=False, progress=False)
+    path = accuracy_vs_time.run_parts(accuracy_vs_time.PARTS, tmp_path / "docs", tmp_path / "work", cuda=False, progress=False)
     md = path.read_text()
     assert "`--quick` results" not in md and "not run" not in md
     assert "| **mvr.yaml** (default) |" in md and "| **small 2v +ref** (default) |" in md

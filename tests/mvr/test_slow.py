@@ -1,4 +1,5 @@
-"""Long runs (``pytest -m slow``): the torus benchmark at full scale, a parameter study end to end."""
+"""Long runs (``pytest -m slow``): the torus benchmark at full scale (the parameter studies:
+tests/benchmarks/test_mvr_parameter_study.py)."""
 from __future__ import annotations
 
 import pytest
@@ -21,13 +22,3 @@ def test_torus_benchmark(tmp_path):
     assert m["hausdorff_rel"] <= 0.0156
     assert m["mesh_genus"] == 1 and m["mesh_components"] == 1
 
-
-def test_study_end_to_end(tmp_path):
-    """One parameter study at toy scale writes its table and plot."""
-    from benchmarks.mvr_study import _studies, run_study
-
-    configure_runtime(threads=1)
-    md = run_study(_studies()["noise"], "torus", tmp_path / "work", tmp_path / "docs", passes=1)
-    text = md.read_text()
-    assert "| none" in text and "| image" in text and "| camera" in text
-    assert (tmp_path / "docs" / "mvr_noise.png").stat().st_size > 1000
