@@ -53,7 +53,7 @@ import torch
 
 import renderer
 import renderer.kernels
-from mvr.outputs import write_text
+from sdfcommon.outputs import write_text
 from renderer import Cameras, Scene, SDFGrid, render, sphere_trace
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -42,7 +42,7 @@ def category_sheet(out: str | Path = DEFAULT_OUT, categories: Optional[Sequence[
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mvr.outputs import atomic_write
+    from sdfcommon.outputs import atomic_write
     from svr.data.procedural import render_shape
 
     if not isinstance(per_category, int) or per_category < 1:

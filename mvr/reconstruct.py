@@ -12,7 +12,7 @@
     settings.json       every setting of the run
     checkpoints/level_XX.pt   the grid after each finished level (a rerun resumes after the last)
 
-Every file is written atomically (mvr.outputs).
+Every file is written atomically (sdfcommon.outputs).
 """
 from __future__ import annotations
 
@@ -28,10 +28,10 @@ import numpy as np
 import torch
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
+from sdfcommon import outputs
+from sdfcommon.geometry import sdf_to_mesh
 from sdfcommon.serialization import load_torch
-from svr.geometry import sdf_to_mesh
 
-from . import outputs
 from .metrics import NORMALISATION, surface_distances
 from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
 from .schedule import Schedule

@@ -26,7 +26,7 @@ import trimesh
 
 from renderer import Cameras, Scene
 from renderer.shading import shade_lambert
-from svr.geometry import sdf_to_mesh
+from sdfcommon.geometry import sdf_to_mesh
 
 from .raycast import TriangleGrid
 from .shapes import SHAPES

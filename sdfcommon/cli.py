@@ -53,6 +53,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 
 from .checks import check_field_types, check_float, check_int
+from .outputs import atomic_write
 from .serialization import scrub_unsafe_advice
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
@@ -195,7 +196,7 @@ class RunFolderSnapshot:
         for rel, old in self.record_bytes.items():
             path = self.folder / rel
             if rel in now and path.read_bytes() != old:
-                _write_back(path, old)
+                atomic_write(path, lambda f, data=old: f.write(data))
         for rel, size in self.sizes.items():
             if rel.endswith(".log") and rel in now and now[rel].stat().st_size > size:
                 with open(now[rel], "r+b") as f:
@@ -247,17 +248,6 @@ def _rmdir_if_empty(path: Path) -> None:
         path.rmdir()
     except OSError:
         pass
-
-
-def _write_back(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        _unlink(Path(tmp))
-        raise
 
 
 class _RunState:

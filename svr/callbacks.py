@@ -1,8 +1,6 @@
 """Training plumbing for Lightning: atomic checkpoint files and image logging."""
 from __future__ import annotations
 
-import os
-import secrets
 from pathlib import Path
 from typing import Any, Optional
 
@@ -11,12 +9,13 @@ import pytorch_lightning as pl
 import torch
 from pytorch_lightning.plugins.io import TorchCheckpointIO
 
+from sdfcommon.outputs import write_torch
 from sdfcommon.pictures import labelled_grid
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
-    """Writes each checkpoint to a temporary file in the target's folder, flushes it to disk, then
-    renames it over the target (``os.replace`` is atomic within one file system).
+    """Writes each checkpoint atomically (``sdfcommon.outputs.atomic_write``: a temporary file in the
+    target's folder, flushed to disk, then renamed over the target; its mode follows the umask).
 
     Lightning's own writer goes through fsspec, whose local transaction stages the bytes in the
     system temp folder and moves them; when that folder is on another file system (a tmpfs /tmp)
@@ -28,19 +27,7 @@ class AtomicCheckpointIO(TorchCheckpointIO):
     def save_checkpoint(self, checkpoint: dict[str, Any], path, storage_options: Optional[Any] = None) -> None:
         if storage_options is not None:
             raise TypeError(f"storage_options is not supported by {type(self).__name__}, got {storage_options!r}")
-        target = Path(path)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.parent / f".{target.name}.{secrets.token_hex(8)}.tmp"
-        try:
-            # A plain exclusive create, so the umask sets the mode as for every other output
-            # (mkstemp would give 0600: colleagues on a shared folder could not read the checkpoint).
-            with open(tmp, "xb") as f:
-                torch.save(checkpoint, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, target)
-        finally:
-            tmp.unlink(missing_ok=True)  # gone after the rename; a failed write's leftover otherwise
+        write_torch(path, checkpoint)
 
 
 def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4, min_tile: int = 128) -> np.ndarray:

@@ -55,8 +55,8 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
     import matplotlib.pyplot as plt
 
     import renderer
+    from sdfcommon.geometry import sdf_to_mesh
 
-    from .geometry import sdf_to_mesh
     from .infer import predict_sdf
 
     net.eval()
@@ -292,7 +292,7 @@ def _main(argv: Optional[Sequence[str]]) -> dict:
     timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,
                "eval_seconds": time.time() - t_eval, "total_seconds_this_command": time.time() - start,
                "resumed": resume is not None, "steps": steps}
-    from mvr.outputs import write_json
+    from sdfcommon.outputs import write_json
 
     result["files"].append(str(write_json(out_dir / "timings.json", timings)))
     iou_json = out_dir / "iou.json"

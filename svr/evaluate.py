@@ -566,14 +566,14 @@ def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: 
 def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: ExtraRows = None,
                  label: Optional[str] = None) -> dict[str, Path]:
     """Writes ``table.md``, ``table.csv``, ``iou.json``, ``per_object.csv`` (worst first) and
-    ``per_image.csv`` into ``output_dir``, each atomically (``mvr.outputs``: temp file + ``os.replace``;
+    ``per_image.csv`` into ``output_dir``, each atomically (``sdfcommon.outputs``: temp file + ``os.replace``;
     non-finite numbers become JSON null). ``extra_rows`` (see ``table_rows``) also go into the JSON
     under ``"extra"``.
 
     Returns:
         {kind: path}. Raises ValueError naming ``output_dir`` when it cannot be written.
     """
-    from mvr.outputs import write_csv, write_json, write_text
+    from sdfcommon.outputs import write_csv, write_json, write_text
 
     folder = ensure_output_dir(output_dir, "output_dir")
     header, rows = table_rows(result, extra_rows, label)

@@ -11,7 +11,7 @@ Per input image ``<stem>`` it writes into ``output_dir`` (each file atomically):
 * ``<stem>_sdf.npz``: ``values`` (N, N, N) float32 SDF (world units) in renderer.SDFGrid's layout
   (``values[i, j, k]`` at world ``(x_i, y_j, z_k)``, samples on the box faces, y up, the NMR
   ShapeNet frame), ``bbox_min`` / ``bbox_max`` (3,) float32, ``stage`` and ``checkpoint``;
-* ``<stem>.ply``, ``<stem>.obj``: the zero level set by marching cubes (``svr.geometry.sdf_to_mesh``,
+* ``<stem>.ply``, ``<stem>.obj``: the zero level set by marching cubes (``sdfcommon.geometry.sdf_to_mesh``,
   closed at the box), checked watertight with trimesh;
 * ``<stem>_views.png``: the network's input (RGB, alpha) beside renders of the prediction from a
   few NMR views (``renderer.render`` with ``renderer.Cameras.nmr``).
@@ -47,7 +47,7 @@ import numpy as np
 import torch
 
 import renderer
-from mvr.outputs import remove_stale_temporaries
+from sdfcommon.outputs import remove_stale_temporaries
 from sdfcommon.checks import check_int
 from sdfcommon.cli import config_bool, config_int, config_ints, config_value, hydra_entry
 from sdfcommon.serialization import scrub_unsafe_advice
@@ -67,7 +67,7 @@ PREVIEW_SCENE = renderer.Scene(effects=("shading",), lights=(), camera_light=0.7
 
 
 # ------------------------------------------------------------------------------------------------
-# Files (each written atomically by mvr.outputs: temporary file beside it, then os.replace)
+# Files (each written atomically by sdfcommon.outputs: temporary file beside it, then os.replace)
 
 
 def ensure_output_dir(path: PathLike, argument: str = "output_dir") -> Path:
@@ -466,7 +466,7 @@ def reconstruct(model: ModelLike, images: torch.Tensor, views: Sequence[int] = D
     Returns:
         one Reconstruction per image.
     """
-    from .geometry import sdf_to_mesh
+    from sdfcommon.geometry import sdf_to_mesh
 
     views = check_view_ids(views)
     check_int(render_size, "render_size", minimum=1)
@@ -539,7 +539,7 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
     Returns:
         {format: path} of the files written.
     """
-    from mvr.outputs import write_mesh, write_npz, write_png
+    from sdfcommon.outputs import write_mesh, write_npz, write_png
 
     check_formats(formats)
     folder = Path(out_dir)

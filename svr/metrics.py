@@ -2,7 +2,7 @@
 
 Pure functions (no state, no I/O). The protocol (SPEC section 5):
 
-1. the predicted SDF grid -> marching-cubes mesh (``svr.geometry.sdf_to_mesh``, closed at the box);
+1. the predicted SDF grid -> marching-cubes mesh (``sdfcommon.geometry.sdf_to_mesh``, closed at the box);
 2. the mesh -> 32^3 solid voxels in the NMR frame by the benchmark's rules
    (``svr.geometry.voxelize_mesh_nmr``: dilated surface voxels, vertex voxels, 6-connected fill);
 3. IoU per test image ``|pred & gt| / |pred | gt|`` (every one of the 24 views of every object is a

@@ -41,7 +41,7 @@ from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
-from mvr.outputs import remove_stale_temporaries, write_csv, write_text
+from sdfcommon.outputs import remove_stale_temporaries, write_csv, write_text
 
 from .callbacks import AtomicCheckpointIO
 from .distributed import launch_rank_is_zero

@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from sdfcommon.checks import check_int
+from sdfcommon.outputs import atomic_path
 
 PathLike = Union[str, os.PathLike]
 
@@ -147,11 +148,10 @@ def open_prepared(path: PathLike, kind: str, num_objects: Optional[int] = None) 
 
 def _stream_npz_to_npy(src: Path, dst: Path, kind: str, chunk_objects: int) -> int:
     """Copies the array of an npz member into ``dst`` (.npy) chunk by chunk, never holding it whole;
-    written to a temporary file first, then renamed."""
+    written to a temporary file first, then renamed (``sdfcommon.outputs.atomic_path``)."""
     item, want = _ITEM[kind]
-    tmp = dst.with_name(f".{dst.name}.tmp-{os.getpid()}")
     try:
-        with zipfile.ZipFile(src) as zf, zf.open(_npz_member(zf, src)) as f:
+        with atomic_path(dst) as tmp, zipfile.ZipFile(src) as zf, zf.open(_npz_member(zf, src)) as f:
             shape, fortran, dtype = _read_npy_header(f, src)
             _check_item(src, kind, shape, dtype)
             if fortran:
@@ -168,12 +168,8 @@ def _stream_npz_to_npy(src: Path, dst: Path, kind: str, chunk_objects: int) -> i
                 out[start:start + k] = block != 0 if kind == "voxels" else block
             out.flush()
             del out
-        os.replace(tmp, dst)
     except (zipfile.BadZipFile, EOFError) as err:
         raise ValueError(f"{src} is truncated or corrupt ({err})") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return n
 
 

@@ -415,7 +415,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
 
     from tqdm.auto import tqdm
 
-    from mvr.outputs import write_json, write_npz
+    from sdfcommon.outputs import remove_stale_temporaries, write_json, write_npz
 
     from .nmr import nmr_file
 
@@ -449,7 +449,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
 
         if not (plan.exists() and json.loads(plan.read_text()) == meta):
             start_afresh()  # nothing yet, or another generator's or settings' leftovers
-        _remove_stale_temporaries(partial)
+        remove_stale_temporaries(partial)
         try:
             arrays = _open_arrays(partial, settings)
         except (ValueError, OSError):  # an array file cut short while it was being created
@@ -508,12 +508,6 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
     # A process waiting for the lock finds the dataset when it gets it; a later one never needs it.
     (out.parent / f".{out.name}.lock").unlink(missing_ok=True)
     return out
-
-
-def _remove_stale_temporaries(folder: Path) -> None:
-    """Deletes the temporary files of atomic writes a killed run left in ``folder``."""
-    for tmp in folder.glob(".*.tmp"):
-        tmp.unlink(missing_ok=True)
 
 
 def procedural_dataset_dir(cache_dir: Union[str, os.PathLike], settings: ProceduralSettings) -> Path:

@@ -33,7 +33,7 @@ def oracle_iou(shape: CSGShape, hs: float = 0.6, n: int = 64) -> float:
 
 
 def _genus(shape: CSGShape, n: int = 64) -> int:
-    from svr.geometry import sdf_to_mesh
+    from sdfcommon.geometry import sdf_to_mesh
 
     ax = np.linspace(-0.56, 0.56, n)
     grid = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1)

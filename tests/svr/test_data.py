@@ -102,7 +102,7 @@ def test_prepare_writes_memory_mapped_arrays_atomically(fake_nmr):
     root, data = fake_nmr
     paths = prepare_nmr(root, categories=list(CATS), progress=False)
     assert len(paths) == 2 * 3 * 2
-    assert not [p for p in root.iterdir() if ".tmp-" in p.name]
+    assert not [p for p in root.iterdir() if p.name.endswith(".tmp")]
     arr = np.load(nmr_file(root, "02691156", "train", "images", "npy"), mmap_mode="r")
     assert isinstance(arr, np.memmap) and arr.shape == (3, 24, 4, 64, 64) and arr.dtype == np.uint8
     ds = NMRDataset(root, "train", categories=list(CATS))
@@ -197,7 +197,7 @@ def test_truncated_npz_is_named(fake_nmr):
         NMRDataset(root, "train", categories=list(CATS))
     with pytest.raises(ValueError, match=rf"{victim} is truncated or corrupt"):
         prepare_nmr(root, categories=list(CATS), progress=False)
-    assert not [p for p in root.iterdir() if ".tmp-" in p.name]
+    assert not [p for p in root.iterdir() if p.name.endswith(".tmp")]
 
 
 def test_truncated_prepared_array_is_named(fake_nmr):

@@ -16,7 +16,8 @@ from svr.data.csg import (BOX, CAPSULE, CONE, CYLINDER, SPHERE, TORUS, CSGBuilde
 from svr.data.nmr import NMRDataset, nmr_file
 from svr.data.procedural import (ALL_CATEGORIES, DEFAULT_SHADING, ProceduralSettings, load_shading, make_shape,
                                  render_shape, voxelize_shape)
-from svr.geometry import sdf_to_mesh, voxels_to_sdf
+from sdfcommon.geometry import sdf_to_mesh
+from svr.geometry import voxels_to_sdf
 
 from .conftest import asymmetric_shape
 
@@ -380,7 +381,7 @@ def test_a_killed_generation_resumes_to_the_same_bytes(tmp_path):
     partial = next(cache.glob(".*.partial"))
     done_before = len(list((partial / "done").iterdir()))
     assert 1 <= done_before < 10  # stopped part-way (10 chunks in all)
-    (partial / ".leftover.npz.abc.tmp").write_bytes(b"x")  # as an atomic write killed mid-way leaves
+    (partial / ".leftover.npz.abc_1234.tmp").write_bytes(b"x")  # as an atomic write killed mid-way leaves
     again = subprocess.run([sys.executable, str(script), str(cache), "2"], capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-2000:]
     folder = Path(again.stdout.strip().splitlines()[-1])

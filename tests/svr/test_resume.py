@@ -159,7 +159,7 @@ def test_stale_temporaries_are_removed(tmp_path, data_overrides):
     left = run / "coarse" / "checkpoints" / ".last.ckpt.0123456789abcdef.tmp"  # the checkpoint writer's
     left.parent.mkdir(parents=True)
     left.write_bytes(b"half a checkpoint")
-    left_too = run / ".config.yaml.ab_12xyz.tmp"  # mkstemp's (mvr.outputs.atomic_write)
+    left_too = run / ".config.yaml.ab_12xyz.tmp"  # mkstemp's (sdfcommon.outputs.atomic_write)
     left_too.write_text("half")
     keep = run / "notes.tmp"  # not an atomic writer's name
     keep.write_text("mine")

@@ -1,7 +1,8 @@
-"""Atomic writes of the output folder: every file goes to a temporary name beside it, then
-``os.replace`` puts it in place, so a run killed mid-write never leaves a truncated file."""
+"""Atomic writes of output files (svr's and mvr's alike): every file goes to a temporary name beside
+it, then ``os.replace`` puts it in place, so a run killed mid-write never leaves a truncated file."""
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import json
@@ -9,10 +10,9 @@ import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Callable, IO, Sequence
+from typing import Callable, IO, Iterator, Sequence
 
 import numpy as np
-import torch
 
 
 def _file_mode() -> int:
@@ -22,22 +22,35 @@ def _file_mode() -> int:
     return 0o666 & ~mask
 
 
-def atomic_write(path: str | Path, write: Callable[[IO[bytes]], None]) -> Path:
-    """Calls ``write(f)`` on a temporary binary file in ``path``'s folder, then renames it to ``path``."""
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """Yields the name of an empty temporary file in ``path``'s folder (``.<name>.<8 chars>.tmp``) for
+    code that writes by file name (e.g. ``numpy.lib.format.open_memmap``); when the block ends
+    normally, gives it the mode a plainly created file gets and renames it to ``path``; when it
+    raises, deletes it. The block must close what it opened on the file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as f:
-            write(f)
-            f.flush()
-            os.fsync(f.fileno())
+        yield Path(tmp)
         os.chmod(tmp, _file_mode())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
             os.unlink(tmp)
         raise
+
+
+def atomic_write(path: str | Path, write: Callable[[IO[bytes]], None]) -> Path:
+    """Calls ``write(f)`` on a temporary binary file in ``path``'s folder, flushes it to disk, then
+    renames it to ``path`` (``atomic_path``)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            write(f)
+            f.flush()
+            os.fsync(f.fileno())
     return path
 
 
@@ -73,6 +86,8 @@ def write_csv(path: str | Path, rows: Sequence[dict], columns: Sequence[str]) ->
 
 def write_torch(path: str | Path, obj) -> Path:
     """``torch.save`` atomically."""
+    import torch
+
     return atomic_write(path, lambda f: torch.save(obj, f))
 
 
@@ -101,12 +116,13 @@ def write_png(path: str | Path, image: np.ndarray) -> Path:
 
 
 # The atomic writers' temporary names: "." + the target's name + "." + 8 random characters (mkstemp)
-# or 16 hex digits (svr's checkpoint writer) + ".tmp".
+# + ".tmp"; 16 hex digits in place of the 8 characters are what svr's checkpoint writer left before
+# it used ``atomic_write``.
 _TEMPORARY = re.compile(r"^\..+\.[A-Za-z0-9_]{8,16}\.tmp$")
 
 
 def remove_stale_temporaries(folder: str | Path) -> list[Path]:
-    """Deletes the temporary files that atomic writes (``atomic_write``, svr's checkpoint writer) left
+    """Deletes the temporary files that atomic writes (``atomic_write``, ``atomic_path``) left
     in ``folder`` and its subfolders when a process was killed mid-write (SIGKILL gives no chance to
     clean up). Call it only where no other process is writing. Returns the files removed."""
     removed = []
