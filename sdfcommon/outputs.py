@@ -134,3 +134,22 @@ def remove_stale_temporaries(folder: str | Path) -> list[Path]:
             path.unlink(missing_ok=True)
             removed.append(path)
     return removed
+
+
+def ensure_output_dir(path: str | Path, argument: str = "output_dir") -> Path:
+    """Creates an output folder if needed, checks that files can be written into it before any
+    work, and removes the temporaries a run killed mid-write left in it (``remove_stale_temporaries``).
+
+    Raises:
+        ValueError naming ``argument`` and the folder when it cannot be created or written.
+    """
+    folder = Path(path).expanduser()
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as err:
+        raise ValueError(f"{argument}: cannot write to the folder {folder} ({err.strerror or err})") from None
+    remove_stale_temporaries(folder)
+    return folder

@@ -54,10 +54,11 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    import renderer
     from sdfcommon.geometry import sdf_to_mesh
 
-    from .infer import predict_sdf
+    from .data.nmr import NUM_VIEWS
+    from .prediction import predict_sdf
+    from .rendering import render_views
 
     net.eval()
     coarse_net.eval()
@@ -76,9 +77,8 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
             hs = net.half_side
             shots = []
             for sdf, view in ((coarse, v), (final, v), (final, v + 6), (final, v + 12)):
-                cams = renderer.Cameras.nmr([view % 24], image_size=64)
-                out = renderer.render(renderer.SDFGrid(sdf, -hs, hs), cams, scene)
-                shots.append(out.image[0].clamp(0, 1).numpy())
+                _, colours = render_views(sdf, hs, torch.tensor([[view % NUM_VIEWS]]), scene, 64)
+                shots.append(colours[0, 0].permute(1, 2, 0).clamp(0, 1).numpy())
             rows.append((f"{name} #0 view {v}", image[0, :3].permute(1, 2, 0).numpy(), shots))
             mesh = sdf_to_mesh(final[0], -hs, hs)
             path = mesh_dir / f"{name}_test0_view{v}.ply"
@@ -139,9 +139,10 @@ def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progres
     from hydra.utils import instantiate
 
     from .baselines import BASELINES
-    from .evaluate import add_baselines, evaluate, format_table, write_report
-    from .infer import load_model
-    from .models.module import load_network
+    from .checkpoints import load_network
+    from .evaluate import add_baselines, evaluate
+    from .prediction import load_model
+    from .report import format_table, write_report
 
     dm = instantiate(cfg.data)
     dm.prepare_data()
@@ -175,7 +176,7 @@ def stage_steps(cfg, run_dir: Path) -> dict[str, dict[str, Optional[int]]]:
     """Per scheduled stage, the steps its config planned and the steps its ``final.ckpt`` reached
     (None where the stage has not finished). A stage that reached fewer was stopped by its time cap
     (``stage.<name>.max_time``): that run trained less than the demo's schedule."""
-    from .models.module import load_checkpoint
+    from .checkpoints import load_checkpoint
 
     out: dict[str, dict[str, Optional[int]]] = {}
     for stage in cfg.stage.schedule:
@@ -202,7 +203,7 @@ def run_train_seconds(run_dir: Path, schedule: Sequence[str]) -> Optional[float]
     """The whole run's training seconds: the sum over its stages of the ``train_seconds`` their
     final checkpoints record (kept over resumes, so a run stopped and resumed counts every part).
     None when a stage has not finished."""
-    from .models.module import CHECKPOINT_KEY, load_checkpoint
+    from .checkpoints import CHECKPOINT_KEY, load_checkpoint
 
     total = 0.0
     for stage in schedule:

@@ -26,10 +26,11 @@ The output folder is ``output_dir`` (hydra's run folder and its ``.hydra/`` reco
 nothing is made in the working directory), else ``outputs/infer/<time>``. A mistake in the settings
 or files is one line ``sdfdiff-infer: error: ...`` with exit status 2 (``sdfcommon.cli``).
 
-Python API (in-memory tensors)::
+Python API (in-memory tensors; loading and predicting live in ``svr.prediction``, the preview
+renders in ``svr.rendering``)::
 
-    model = load_model("best.ckpt", device="cpu")
-    grids = predict(model, images)            # images (B, 4, 64, 64) -> renderer.SDFGrid (B, N, N, N)
+    model = svr.prediction.load_model("best.ckpt", device="cpu")
+    grids = svr.prediction.predict(model, images)   # (B, 4, 64, 64) -> renderer.SDFGrid (B, N, N, N)
     recs = reconstruct(model, images)         # + meshes, watertight flags, renders
     save_reconstruction(recs[0], "out", "name", input_image=images[0])
 """
@@ -37,7 +38,6 @@ from __future__ import annotations
 
 import logging
 import os
-import tempfile
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,232 +47,19 @@ import numpy as np
 import torch
 
 import renderer
-from sdfcommon.outputs import remove_stale_temporaries
 from sdfcommon.checks import check_int
 from sdfcommon.cli import config_bool, config_int, config_ints, config_value, hydra_entry
-from sdfcommon.serialization import scrub_unsafe_advice
+from sdfcommon.outputs import ensure_output_dir
 
-from .data.nmr import NUM_VIEWS, check_view_ids, images_to_float
-from .models.network import SVRNet, SVRPrediction
+from .data.nmr import check_view_ids, images_to_float
+from .prediction import ModelLike, as_model, load_model, predict
+from .rendering import PREVIEW_VIEWS, render_previews
 
 log = logging.getLogger(__name__)
 
 PathLike = Union[str, os.PathLike]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 OUTPUT_FORMATS = ("npz", "ply", "obj", "png")
-DEFAULT_VIEWS = (0, 6, 12, 18)  # NMR views: azimuth 0, -90, -180, -270 degrees
-# The renders of the prediction: a neutral grey material lit from each camera (every view alike).
-PREVIEW_SCENE = renderer.Scene(effects=("shading",), lights=(), camera_light=0.75, camera_light_falloff=False,
-                               ambient=0.25, albedo=(0.8, 0.8, 0.8), background=1.0)
-
-
-# ------------------------------------------------------------------------------------------------
-# Files (each written atomically by sdfcommon.outputs: temporary file beside it, then os.replace)
-
-
-def ensure_output_dir(path: PathLike, argument: str = "output_dir") -> Path:
-    """Creates the folder if needed and checks that files can be written into it, before any work.
-
-    Raises:
-        ValueError naming ``argument`` and the folder when it cannot be created or written.
-    """
-    folder = Path(path).expanduser()
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as err:
-        raise ValueError(f"{argument}: cannot write to the folder {folder} ({err.strerror or err})") from None
-    remove_stale_temporaries(folder)  # what a run killed mid-write (kill -9) left
-    return folder
-
-
-# ------------------------------------------------------------------------------------------------
-# Models
-
-
-def resolve_device(device: Union[str, torch.device, None] = "auto") -> torch.device:
-    """"auto" (or None): CUDA when available, else the CPU; otherwise the named device, checked.
-
-    Raises:
-        ValueError naming ``device`` when it is unknown or CUDA is asked for but not available.
-    """
-    if device is None or (isinstance(device, str) and device == "auto"):
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError):
-        raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {device!r}") from None
-    if dev.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ValueError(f"device={str(device)!r} but CUDA is not available here (use device=cpu or auto)")
-        if dev.index is not None and dev.index >= torch.cuda.device_count():
-            raise ValueError(f"device={str(device)!r} but only {torch.cuda.device_count()} CUDA device(s) exist")
-    elif dev.type != "cpu":
-        raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {device!r}")
-    return dev
-
-
-@dataclass(frozen=True)
-class LoadedModel:
-    """A trained network ready for inference.
-
-    Attributes:
-        net: the SVRNet, in eval mode, on ``device``.
-        stage: the training stage of the checkpoint ("coarse", "refine", "joint"); a "coarse"
-            checkpoint's refiner is untrained, so its output is the coarse SDF.
-        checkpoint: the file it came from (None for a network given directly).
-        categories: the training data's (category id, name) pairs, when the checkpoint has them.
-    """
-
-    net: SVRNet
-    stage: str = "joint"
-    checkpoint: Optional[Path] = None
-    categories: Optional[tuple[tuple[str, str], ...]] = None
-
-    @property
-    def device(self) -> torch.device:
-        return next(self.net.parameters()).device
-
-    @property
-    def uses_refiner(self) -> bool:
-        """Whether the final output is the refined SDF (every stage but "coarse")."""
-        return self.stage != "coarse"
-
-    @property
-    def half_side(self) -> float:
-        return self.net.half_side
-
-    @property
-    def grid_resolution(self) -> int:
-        """N of the N^3 SDF grids the network outputs."""
-        return int(self.net.decoder.grid_resolution)
-
-    @property
-    def image_size(self) -> int:
-        return int(getattr(self.net.encoder, "image_size", 64))
-
-    @property
-    def output_name(self) -> str:
-        return "refined" if self.uses_refiner else "coarse"
-
-
-ModelLike = Union[LoadedModel, SVRNet, str, os.PathLike]
-
-
-def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "auto") -> LoadedModel:
-    """Loads one of our checkpoints (made on a CPU or a GPU) onto ``device`` for inference.
-
-    The network is rebuilt from the model config stored in the checkpoint
-    (``svr.models.module.load_network``), so no config is needed here.
-
-    Raises:
-        FileNotFoundError naming the file; ValueError naming the file when it is corrupt, truncated
-        or not an SDFDiff single-view checkpoint, and naming ``device`` when that is unusable.
-    """
-    from .models.module import load_network
-
-    if ckpt_path is None or str(ckpt_path).strip() in ("", "???"):
-        raise ValueError("ckpt_path must name a checkpoint file (e.g. ckpt_path=RUN/joint/checkpoints/best.ckpt)")
-    dev = resolve_device(device)
-    path = Path(ckpt_path).expanduser()
-    if path.is_dir():
-        raise ValueError(f"ckpt_path: {path} is a folder, not a checkpoint file")
-    try:
-        net, meta = load_network(path, map_location=dev)
-    except FileNotFoundError as err:
-        raise FileNotFoundError(f"ckpt_path: {err}") from None
-    except ValueError as err:
-        raise ValueError(f"ckpt_path: {scrub_unsafe_advice(str(err))}") from None
-    cats = meta.get("categories")
-    return LoadedModel(net=net, stage=str(meta["stage"]), checkpoint=path,
-                       categories=tuple((str(c), str(n)) for c, n in cats) if cats else None)
-
-
-def as_model(model: ModelLike, device: Union[str, torch.device, None] = None) -> LoadedModel:
-    """A LoadedModel from a LoadedModel, a bare SVRNet (treated as fully trained) or a checkpoint
-    path (loaded onto ``device``, "auto" when None)."""
-    if isinstance(model, LoadedModel):
-        return model
-    if isinstance(model, SVRNet):
-        return LoadedModel(net=model.eval())
-    if isinstance(model, (str, os.PathLike)):
-        return load_model(model, "auto" if device is None else device)
-    raise TypeError(f"model must be a LoadedModel, an SVRNet or a checkpoint path, got {type(model).__name__}")
-
-
-def check_images(images: torch.Tensor, image_size: int = 64, name: str = "images") -> torch.Tensor:
-    """Validates network inputs: (B, 4, S, S) (or one (4, S, S)) float RGBA in [0, 1].
-
-    Returns:
-        (B, 4, S, S) float32 tensor (same device).
-    """
-    if not isinstance(images, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(images).__name__}")
-    x = images.unsqueeze(0) if images.ndim == 3 else images
-    if x.ndim != 4 or tuple(x.shape[1:]) != (4, image_size, image_size):
-        raise ValueError(f"{name} must have shape (B, 4, {image_size}, {image_size}) (RGBA in [0, 1]), "
-                         f"got {tuple(images.shape)}; load_image() reads and resizes files")
-    if x.shape[0] == 0:
-        raise ValueError(f"{name} must hold at least one image")
-    if not x.is_floating_point():
-        raise TypeError(f"{name} must be a float tensor in [0, 1], got {x.dtype}")
-    if not bool(torch.isfinite(x).all()) or float(x.min()) < 0.0 or float(x.max()) > 1.0:
-        raise ValueError(f"{name} must hold finite values in [0, 1]")
-    return x.float()
-
-
-@torch.no_grad()
-def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
-                refine: Optional[bool] = None, clip: bool = True) -> SVRPrediction:
-    """The network's coarse and (unless the model is a coarse-stage one) refined SDFs.
-
-    Args:
-        model: LoadedModel, SVRNet or checkpoint path.
-        images: (B, 4, 64, 64) float RGBA in [0, 1], RGB on white (as the datasets give them).
-        batch_size: images per forward pass.
-        refine: run the refiner (default: ``model.uses_refiner``).
-        clip: intersect the shapes with the cube the objects are normalised into
-            (``svr.geometry.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
-            output of this module and ``svr.evaluate`` goes through it.
-    Returns:
-        SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32
-        on the model's device, over the box ``[-half_side, half_side]^3`` (world units).
-    """
-    m = as_model(model)
-    check_int(batch_size, "batch_size", minimum=1)
-    x = check_images(images, m.image_size)
-    use_refiner = m.uses_refiner if refine is None else bool(refine)
-    m.net.eval()
-    coarse, refined = [], []
-    for chunk in x.split(batch_size):
-        out = m.net(chunk.to(m.device, non_blocking=True), refine=use_refiner)
-        coarse.append(out.coarse)
-        if out.refined is not None:
-            refined.append(out.refined)
-    coarse_t = torch.cat(coarse)
-    refined_t = torch.cat(refined) if use_refiner else None
-    if clip:
-        from .geometry import clip_to_box
-
-        hs = m.half_side
-        coarse_t = clip_to_box(coarse_t, -hs, hs)
-        refined_t = clip_to_box(refined_t, -hs, hs) if refined_t is not None else None
-    return SVRPrediction(coarse=coarse_t, refined=refined_t)
-
-
-def predict(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
-            refine: Optional[bool] = None) -> renderer.SDFGrid:
-    """SDF grids predicted from images: the model's final output (see ``predict_sdf``).
-
-    Returns:
-        renderer.SDFGrid with values (B, N, N, N) float32 on the model's device and the box
-        ``[-half_side, half_side]^3`` (world, y up, NMR ShapeNet frame).
-    """
-    m = as_model(model)
-    out = predict_sdf(m, images, batch_size, refine)
-    return renderer.SDFGrid(out.final, -m.half_side, m.half_side)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -434,24 +221,7 @@ class Reconstruction:
     views: tuple[int, ...]
 
 
-@torch.no_grad()
-def render_views(grid: renderer.SDFGrid, views: Sequence[int] = DEFAULT_VIEWS, image_size: int = 128,
-                 backend: str = "auto") -> torch.Tensor:
-    """Shaded renders of each grid from the NMR cameras ``views`` (``PREVIEW_SCENE``: grey, white background).
-
-    Returns:
-        (B, K, S, S, 3) float32 CPU in [0, 1].
-    """
-    views = list(check_view_ids(views, allow_empty=False))
-    check_int(image_size, "image_size", minimum=1)
-    b = grid.batch_size
-    cams = renderer.Cameras.nmr(views * b, image_size=image_size, dtype=grid.dtype, device=grid.device)
-    out = renderer.render(grid, cams, PREVIEW_SCENE, backend=backend)
-    img = out.image.detach().float().clamp(0, 1).cpu()
-    return img.reshape(b, len(views), image_size, image_size, img.shape[-1])
-
-
-def reconstruct(model: ModelLike, images: torch.Tensor, views: Sequence[int] = DEFAULT_VIEWS,
+def reconstruct(model: ModelLike, images: torch.Tensor, views: Sequence[int] = PREVIEW_VIEWS,
                 render_size: int = 128, batch_size: int = 16, backend: str = "auto",
                 require_watertight: bool = False, names: Optional[Sequence[str]] = None) -> list[Reconstruction]:
     """Predicts SDF grids, extracts watertight meshes and renders previews for B images.
@@ -477,7 +247,7 @@ def reconstruct(model: ModelLike, images: torch.Tensor, views: Sequence[int] = D
         raise ValueError(f"names must have one entry per image ({grid.batch_size}), got {len(names)}")
     renders = None
     if views:
-        renders = torch.cat([render_views(renderer.SDFGrid(v, -m.half_side, m.half_side), views, render_size, backend)
+        renders = torch.cat([render_previews(renderer.SDFGrid(v, -m.half_side, m.half_side), views, render_size, backend)
                              for v in grid.values.split(batch_size)])
     values = grid.values.detach().float().cpu()
     lo = tuple(float(c) for c in grid.bbox_min.cpu())
@@ -577,7 +347,7 @@ def _unique_names(paths: Sequence[Path]) -> list[str]:
 
 def infer_files(model: ModelLike, images: Union[PathLike, Sequence[PathLike]], output_dir: PathLike,
                 masks: Optional[Sequence[Optional[PathLike]]] = None, mask_suffix: str = "_mask",
-                views: Sequence[int] = DEFAULT_VIEWS, render_size: int = 128, batch_size: int = 16,
+                views: Sequence[int] = PREVIEW_VIEWS, render_size: int = 128, batch_size: int = 16,
                 formats: Sequence[str] = OUTPUT_FORMATS, require_watertight: bool = False,
                 backend: str = "auto", progress: bool = False) -> list[dict[str, Path]]:
     """Reads images (files or folders), reconstructs them and writes the results into ``output_dir``.
@@ -659,8 +429,5 @@ if __name__ == "__main__":
     main()
 
 
-__all__ = ["LoadedModel", "Reconstruction", "load_model", "as_model", "resolve_device", "check_images",
-           "predict_sdf", "predict", "load_image", "find_images", "find_mask", "render_views", "reconstruct",
-           "preview_picture", "save_reconstruction", "infer_files", "ensure_output_dir", "check_view_ids",
-           "check_silhouette", "check_formats", "run", "main",
-           "DEFAULT_VIEWS", "OUTPUT_FORMATS", "PREVIEW_SCENE"]
+__all__ = ["Reconstruction", "load_image", "find_images", "find_mask", "reconstruct", "preview_picture",
+           "save_reconstruction", "infer_files", "check_silhouette", "check_formats", "run", "main", "OUTPUT_FORMATS"]

@@ -23,8 +23,9 @@ import torch
 from torch.nn import functional as F
 
 import renderer
-from sdfcommon.regularisers import (band_regularisers, check_grid, check_positive, eikonal_loss, laplacian_loss,
-                                    narrow_band)
+from sdfcommon.regularisers import band_regularisers, check_positive, eikonal_loss, laplacian_loss, narrow_band
+
+from .rendering import render_views
 
 SILHOUETTE_KINDS = ("mse", "iou")
 
@@ -108,42 +109,6 @@ class ImageLoss:
     target: torch.Tensor
 
 
-def render_views(
-    sdf: torch.Tensor,
-    half_side: float,
-    view_ids: torch.Tensor,
-    scene: renderer.Scene,
-    image_size: int = 64,
-    trace_settings: renderer.TraceSettings = renderer.TraceSettings(),
-    backend: str = "auto",
-) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
-    """Renders each of B SDF grids from its V NMR views.
-
-    Args:
-        sdf: (B, N, N, N) SDF over ``[-half_side, half_side]^3`` (world units).
-        view_ids: (B, V) NMR view indices (``renderer.Cameras.nmr``).
-        scene: renderer.Scene (its effects decide which passes run).
-        image_size: render side H = W.
-    Returns:
-        silhouettes (B, V, H, W) and colours (B, V, C, H, W) (None unless the scene shades).
-    """
-    check_grid(sdf)
-    if view_ids.ndim != 2 or view_ids.shape[0] != sdf.shape[0]:
-        raise ValueError(f"view_ids must have shape (B={sdf.shape[0]}, V), got {tuple(view_ids.shape)}")
-    if not scene.wants("silhouette"):
-        raise ValueError(f"scene.effects must include 'silhouette', got {scene.effects}")
-    b, v = view_ids.shape
-    grid = renderer.SDFGrid(sdf, -float(half_side), float(half_side))
-    cams = renderer.Cameras.nmr(view_ids.reshape(-1).cpu(), image_size=image_size, dtype=sdf.dtype,
-                                device=sdf.device)
-    out = renderer.render(grid, cams, scene, trace_settings, backend)
-    sil = out.silhouette.reshape(b, v, image_size, image_size)
-    colours = None
-    if out.image is not None:
-        colours = out.image.reshape(b, v, image_size, image_size, -1).permute(0, 1, 4, 2, 3)
-    return sil, colours
-
-
 def image_loss(
     sdf: torch.Tensor,
     half_side: float,
@@ -172,6 +137,8 @@ def image_loss(
     if images.shape[:2] != view_ids.shape:
         raise ValueError(f"images {tuple(images.shape[:2])} and view_ids {tuple(view_ids.shape)} "
                          f"must agree on (B, V)")
+    if not scene.wants("silhouette"):
+        raise ValueError(f"scene.effects must include 'silhouette', got {scene.effects}")
     target = resize_images(images.to(sdf.dtype), render_size)
     sil, colours = render_views(sdf, half_side, view_ids, scene, render_size, trace_settings, backend)
     l_sil = silhouette_loss(sil, target[:, :, 3], silhouette_kind)
@@ -253,5 +220,5 @@ def total_loss(image: ImageLoss, sdf: torch.Tensor, voxel_size: float, weights: 
 
 __all__ = [
     "narrow_band", "band_regularisers", "eikonal_loss", "laplacian_loss", "silhouette_loss", "shading_loss", "resize_images",
-    "render_views", "image_loss", "ImageLoss", "LossWeights", "LossTerms", "total_loss", "SILHOUETTE_KINDS",
+    "image_loss", "ImageLoss", "LossWeights", "LossTerms", "total_loss", "SILHOUETTE_KINDS",
 ]

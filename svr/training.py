@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import Any, Optional, Sequence
 
 import pytorch_lightning as pl
-import torch
 from hydra.utils import instantiate
 from omegaconf import DictConfig, OmegaConf
 from pytorch_lightning.callbacks import ModelCheckpoint
@@ -47,8 +46,8 @@ from .callbacks import AtomicCheckpointIO
 from .distributed import launch_rank_is_zero
 from .host_memory import keep_freed_memory
 from .losses import LossWeights
-from .models.module import (CHECKPOINT_KEY, STAGES, SVRLightningModule, check_stage, load_checkpoint,
-                            load_network_weights)
+from .checkpoints import CHECKPOINT_KEY, STAGES, check_stage, load_checkpoint, load_network_weights
+from .models.module import SVRLightningModule
 from .models.network import SVRNet
 
 log = logging.getLogger(__name__)

@@ -30,23 +30,16 @@ import torch
 
 import renderer
 
+from ..checkpoints import CHECKPOINT_KEY, check_stage
 from ..data.types import SVRBatch
 from ..distributed import gather_unique
 from ..losses import LossTerms, LossWeights, image_loss, total_loss
 from ..metrics import iou_direct, iou_table
 from .network import SVRNet
 
-STAGES = ("coarse", "refine", "joint")
-CHECKPOINT_KEY = "sdfdiff"
 
 OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
 SchedulerFactory = Callable[[torch.optim.Optimizer], Any]
-
-
-def check_stage(stage: str) -> str:
-    if stage not in STAGES:
-        raise ValueError(f"stage must be one of {STAGES}, got {stage!r}")
-    return stage
 
 
 def _default_optimizer(params: Iterable[torch.nn.Parameter]) -> torch.optim.Optimizer:
@@ -152,8 +145,9 @@ class SVRLightningModule(pl.LightningModule):
     def uses_refiner(self) -> bool:
         return self.stage != "coarse"
 
-    def predict_sdf(self, images: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
-        """(B, 4, 64, 64) images -> coarse (B, N, N, N) and refined SDF (None in the coarse stage).
+    def stage_sdf(self, images: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
+        """(B, 4, 64, 64) images -> the coarse (B, N, N, N) and refined SDF (None in the coarse stage) as
+        this stage trains them (inference: ``svr.prediction.predict_sdf``).
 
         Frozen parts run without a graph (they need no gradient)."""
         if self.stage == "refine":
@@ -166,7 +160,7 @@ class SVRLightningModule(pl.LightningModule):
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """(B, 4, 64, 64) RGBA -> (B, N, N, N) the stage's output SDF (refined unless coarse stage)."""
-        coarse, refined = self.predict_sdf(images)
+        coarse, refined = self.stage_sdf(images)
         return refined if refined is not None else coarse
 
     # ------------------------------------------------------------------ training
@@ -198,7 +192,7 @@ class SVRLightningModule(pl.LightningModule):
     def training_step(self, batch: SVRBatch, batch_idx: int) -> torch.Tensor:
         self._skip_this_step = False
         images = batch.images[:, 0]
-        coarse, refined = self.predict_sdf(images)
+        coarse, refined = self.stage_sdf(images)
         sdf = refined if refined is not None else coarse
         terms, why = None, None
         if not bool(torch.isfinite(sdf.detach()).all()):
@@ -266,7 +260,7 @@ class SVRLightningModule(pl.LightningModule):
     def validation_step(self, batch: SVRBatch, batch_idx: int) -> None:
         """Fast direct IoU (``svr.metrics.iou_direct``) of the stage's output and of the coarse SDF,
         one prediction per batch element from its first view."""
-        coarse, refined = self.predict_sdf(batch.images[:, 0])
+        coarse, refined = self.stage_sdf(batch.images[:, 0])
         hs = self.net.half_side
         iou_c = iou_direct(coarse, batch.voxels, -hs, hs).to(self.device)
         iou = iou_direct(refined, batch.voxels, -hs, hs).to(self.device) if refined is not None else iou_c
@@ -328,72 +322,3 @@ def _category_mean(iou: torch.Tensor, cat: torch.Tensor,
         categories = [(str(c), str(c)) for c in range(n)]
     table = iou_table(iou.cpu(), cat, categories)
     return table.mean, {r.name: r.iou for r in table.rows if r.images > 0}
-
-
-def load_checkpoint(path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Loads one of our Lightning checkpoints (tensors and plain values only) and checks it is ours.
-
-    Raises:
-        FileNotFoundError: no such file. ValueError: unreadable, truncated or not an SDFDiff
-        single-view checkpoint (the message names the file).
-    """
-    from pathlib import Path
-
-    from sdfcommon.serialization import load_torch
-
-    p = Path(path)
-    ckpt = load_torch(p, map_location)  # weights only; errors name the file, never advise unsafe loading
-    if not isinstance(ckpt, dict) or CHECKPOINT_KEY not in ckpt or "state_dict" not in ckpt:
-        raise ValueError(f"{p}: not an SDFDiff single-view checkpoint (no '{CHECKPOINT_KEY}' entry)")
-    meta = ckpt[CHECKPOINT_KEY]
-    if meta.get("stage") not in STAGES:
-        raise ValueError(f"{p}: unknown training stage {meta.get('stage')!r} in the checkpoint")
-    return ckpt
-
-
-def load_network(path, map_location: str | torch.device = "cpu") -> tuple[SVRNet, dict[str, Any]]:
-    """Rebuilds the network of a checkpoint from the model config stored in it, with its weights.
-
-    Returns:
-        (SVRNet in eval mode, the checkpoint's metadata: stage, half_side, grid_resolution,
-        categories, model_config, skipped_steps).
-    """
-    from hydra.utils import instantiate
-
-    ckpt = load_checkpoint(path, map_location)
-    meta = ckpt[CHECKPOINT_KEY]
-    if not meta.get("model_config"):
-        raise ValueError(f"{path}: the checkpoint holds no model config to rebuild the network from")
-    # A checkpoint is data: never let it name arbitrary callables for hydra to run.
-    for target in _targets(meta["model_config"]):
-        if not str(target).startswith("svr.models."):
-            raise ValueError(f"{path}: its model config names {target!r}; only svr.models classes may be built")
-    net = instantiate(meta["model_config"])
-    if not isinstance(net, SVRNet):
-        raise ValueError(f"{path}: its model config builds a {type(net).__name__}, not an SVRNet")
-    load_network_weights(net, ckpt, path)
-    net.to(map_location).eval()
-    return net, dict(meta)
-
-
-def _targets(config: Any):
-    """Every ``_target_`` value in a nested dict/list config."""
-    if isinstance(config, dict):
-        for key, value in config.items():
-            if key == "_target_":
-                yield value
-            else:
-                yield from _targets(value)
-    elif isinstance(config, (list, tuple)):
-        for value in config:
-            yield from _targets(value)
-
-
-def load_network_weights(net: SVRNet, checkpoint: dict[str, Any], path) -> None:
-    """Copies the network weights of a loaded checkpoint (``load_checkpoint``) into ``net``; strict:
-    the architectures must match (the error names the file)."""
-    state = {k[len("net."):]: v for k, v in checkpoint["state_dict"].items() if k.startswith("net.")}
-    try:
-        net.load_state_dict(state, strict=True)
-    except RuntimeError as err:
-        raise ValueError(f"{path}: its network does not match the model ({err})") from None

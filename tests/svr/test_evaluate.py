@@ -21,8 +21,9 @@ import torch
 
 from svr.data.datamodule import ProceduralDataModule
 from svr.data.nmr import NMR_CATEGORIES
-from svr.evaluate import EvaluationResult, evaluate, format_table, main, table_rows, write_report
-from svr.infer import load_model, predict
+from svr.evaluate import EvaluationResult, evaluate, main
+from svr.prediction import load_model, predict
+from svr.report import format_table, table_rows, write_report
 from svr.metrics import iou_protocol, iou_table
 
 from ..entry_points import expect_usage_error, run_entry
@@ -249,7 +250,7 @@ def test_output_dir_is_the_run_folder(tiny_run, tmp_path, monkeypatch, capsys):
 
 WORKERS_SCRIPT = """
 import json, os, sys, time
-from svr.evaluate import process_pool
+from sdfcommon.processes import process_pool
 pool = process_pool(2)
 pids = sorted({f.result() for f in [pool.submit(os.getpid) for _ in range(16)]})
 print(json.dumps(pids), flush=True)

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 import renderer
-from svr.losses import (LossWeights, image_loss, render_views, resize_images, silhouette_loss, shading_loss,
-                        total_loss)
+from svr.losses import LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss
+from svr.rendering import render_views
 
 
 def test_silhouette_losses_hand_computed():

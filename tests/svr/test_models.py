@@ -16,7 +16,8 @@ from svr.data.types import SVRBatch
 from svr.models import BlockRefiner, ImageEncoder, SDFDecoder, SDFRefiner, SVRNet, sphere_template
 from svr.models.decoder import linear_upsample_matrix, upsample2_centres, upsample_grid
 from svr.models.refiner import fold_blocks, unfold_blocks
-from svr.models.module import SVRLightningModule, load_checkpoint, load_network
+from svr.checkpoints import load_checkpoint, load_network
+from svr.models.module import SVRLightningModule
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")
 
@@ -215,7 +216,7 @@ def test_refine_stage_freezes_encoder_and_decoder():
 
 def test_coarse_stage_does_not_run_or_train_the_refiner():
     module = SVRLightningModule(tiny_net(), stage="coarse", render_size=16)
-    coarse, refined = module.predict_sdf(torch.rand(2, 4, 64, 64))
+    coarse, refined = module.stage_sdf(torch.rand(2, 4, 64, 64))
     assert refined is None
     assert not any(p.requires_grad for p in module.net.refiner.parameters())
     assert all(p.requires_grad for p in module.net.encoder.parameters())

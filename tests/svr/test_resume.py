@@ -17,7 +17,7 @@ import pytorch_lightning as pl
 import torch
 from omegaconf import OmegaConf
 
-from svr.models.module import load_checkpoint
+from svr.checkpoints import load_checkpoint
 from svr.train_main import resume_arguments, slurm_arguments
 from svr.training import TrainingStopped, latest_checkpoint, resume_config, run_folder_of, train
 

@@ -17,7 +17,8 @@ from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
 from svr.callbacks import AtomicCheckpointIO
-from svr.models.module import SVRLightningModule, load_checkpoint
+from svr.checkpoints import load_checkpoint
+from svr.models.module import SVRLightningModule
 from svr.training import build_module, build_trainer, train
 
 REPO = Path(__file__).resolve().parents[2]

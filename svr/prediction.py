@@ -1,0 +1,209 @@
+"""The trained network, used: network -> prediction.
+
+``load_model`` reads a checkpoint (``svr.checkpoints``) onto a device; ``predict_sdf`` runs the
+network on images in batches without gradients and closes the shapes at the normalisation cube
+(``svr.geometry.clip_to_box``); ``predict`` gives ``renderer.SDFGrid``s. Evaluation, inference and
+the demo all predict through here, so they score and show the same shapes.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Union
+
+import torch
+
+import renderer
+from sdfcommon.checks import check_int
+from sdfcommon.serialization import scrub_unsafe_advice
+
+from .checkpoints import load_network
+from .models.network import SVRNet, SVRPrediction
+
+PathLike = Union[str, os.PathLike]
+
+
+def resolve_device(device: Union[str, torch.device, None] = "auto") -> torch.device:
+    """"auto" (or None): CUDA when available, else the CPU; otherwise the named device, checked.
+
+    Raises:
+        ValueError naming ``device`` when it is unknown or CUDA is asked for but not available.
+    """
+    if device is None or (isinstance(device, str) and device == "auto"):
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError):
+        raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {device!r}") from None
+    if dev.type == "cuda":
+        if not torch.cuda.is_available():
+            raise ValueError(f"device={str(device)!r} but CUDA is not available here (use device=cpu or auto)")
+        if dev.index is not None and dev.index >= torch.cuda.device_count():
+            raise ValueError(f"device={str(device)!r} but only {torch.cuda.device_count()} CUDA device(s) exist")
+    elif dev.type != "cpu":
+        raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got {device!r}")
+    return dev
+
+
+@dataclass(frozen=True)
+class LoadedModel:
+    """A trained network ready for inference.
+
+    Attributes:
+        net: the SVRNet, in eval mode, on ``device``.
+        stage: the training stage of the checkpoint ("coarse", "refine", "joint"); a "coarse"
+            checkpoint's refiner is untrained, so its output is the coarse SDF.
+        checkpoint: the file it came from (None for a network given directly).
+        categories: the training data's (category id, name) pairs, when the checkpoint has them.
+    """
+
+    net: SVRNet
+    stage: str = "joint"
+    checkpoint: Optional[Path] = None
+    categories: Optional[tuple[tuple[str, str], ...]] = None
+
+    @property
+    def device(self) -> torch.device:
+        return next(self.net.parameters()).device
+
+    @property
+    def uses_refiner(self) -> bool:
+        """Whether the final output is the refined SDF (every stage but "coarse")."""
+        return self.stage != "coarse"
+
+    @property
+    def half_side(self) -> float:
+        return self.net.half_side
+
+    @property
+    def grid_resolution(self) -> int:
+        """N of the N^3 SDF grids the network outputs."""
+        return int(self.net.decoder.grid_resolution)
+
+    @property
+    def image_size(self) -> int:
+        return int(getattr(self.net.encoder, "image_size", 64))
+
+    @property
+    def output_name(self) -> str:
+        return "refined" if self.uses_refiner else "coarse"
+
+
+ModelLike = Union[LoadedModel, SVRNet, str, os.PathLike]
+
+
+def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "auto") -> LoadedModel:
+    """Loads one of our checkpoints (made on a CPU or a GPU) onto ``device`` for inference.
+
+    The network is rebuilt from the model config stored in the checkpoint
+    (``svr.checkpoints.load_network``), so no config is needed here.
+
+    Raises:
+        FileNotFoundError naming the file; ValueError naming the file when it is corrupt, truncated
+        or not an SDFDiff single-view checkpoint, and naming ``device`` when that is unusable.
+    """
+    if ckpt_path is None or str(ckpt_path).strip() in ("", "???"):
+        raise ValueError("ckpt_path must name a checkpoint file (e.g. ckpt_path=RUN/joint/checkpoints/best.ckpt)")
+    dev = resolve_device(device)
+    path = Path(ckpt_path).expanduser()
+    if path.is_dir():
+        raise ValueError(f"ckpt_path: {path} is a folder, not a checkpoint file")
+    try:
+        net, meta = load_network(path, map_location=dev)
+    except FileNotFoundError as err:
+        raise FileNotFoundError(f"ckpt_path: {err}") from None
+    except ValueError as err:
+        raise ValueError(f"ckpt_path: {scrub_unsafe_advice(str(err))}") from None
+    cats = meta.get("categories")
+    return LoadedModel(net=net, stage=str(meta["stage"]), checkpoint=path,
+                       categories=tuple((str(c), str(n)) for c, n in cats) if cats else None)
+
+
+def as_model(model: ModelLike, device: Union[str, torch.device, None] = None) -> LoadedModel:
+    """A LoadedModel from a LoadedModel, a bare SVRNet (treated as fully trained) or a checkpoint
+    path (loaded onto ``device``, "auto" when None)."""
+    if isinstance(model, LoadedModel):
+        return model
+    if isinstance(model, SVRNet):
+        return LoadedModel(net=model.eval())
+    if isinstance(model, (str, os.PathLike)):
+        return load_model(model, "auto" if device is None else device)
+    raise TypeError(f"model must be a LoadedModel, an SVRNet or a checkpoint path, got {type(model).__name__}")
+
+
+def check_images(images: torch.Tensor, image_size: int = 64, name: str = "images") -> torch.Tensor:
+    """Validates network inputs: (B, 4, S, S) (or one (4, S, S)) float RGBA in [0, 1].
+
+    Returns:
+        (B, 4, S, S) float32 tensor (same device).
+    """
+    if not isinstance(images, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(images).__name__}")
+    x = images.unsqueeze(0) if images.ndim == 3 else images
+    if x.ndim != 4 or tuple(x.shape[1:]) != (4, image_size, image_size):
+        raise ValueError(f"{name} must have shape (B, 4, {image_size}, {image_size}) (RGBA in [0, 1]), "
+                         f"got {tuple(images.shape)}; load_image() reads and resizes files")
+    if x.shape[0] == 0:
+        raise ValueError(f"{name} must hold at least one image")
+    if not x.is_floating_point():
+        raise TypeError(f"{name} must be a float tensor in [0, 1], got {x.dtype}")
+    if not bool(torch.isfinite(x).all()) or float(x.min()) < 0.0 or float(x.max()) > 1.0:
+        raise ValueError(f"{name} must hold finite values in [0, 1]")
+    return x.float()
+
+
+@torch.no_grad()
+def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
+                refine: Optional[bool] = None, clip: bool = True) -> SVRPrediction:
+    """The network's coarse and (unless the model is a coarse-stage one) refined SDFs.
+
+    Args:
+        model: LoadedModel, SVRNet or checkpoint path.
+        images: (B, 4, 64, 64) float RGBA in [0, 1], RGB on white (as the datasets give them).
+        batch_size: images per forward pass.
+        refine: run the refiner (default: ``model.uses_refiner``).
+        clip: intersect the shapes with the cube the objects are normalised into
+            (``svr.geometry.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
+            output of this module and ``svr.evaluate`` goes through it.
+    Returns:
+        SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32
+        on the model's device, over the box ``[-half_side, half_side]^3`` (world units).
+    """
+    m = as_model(model)
+    check_int(batch_size, "batch_size", minimum=1)
+    x = check_images(images, m.image_size)
+    use_refiner = m.uses_refiner if refine is None else bool(refine)
+    m.net.eval()
+    coarse, refined = [], []
+    for chunk in x.split(batch_size):
+        out = m.net(chunk.to(m.device, non_blocking=True), refine=use_refiner)
+        coarse.append(out.coarse)
+        if out.refined is not None:
+            refined.append(out.refined)
+    coarse_t = torch.cat(coarse)
+    refined_t = torch.cat(refined) if use_refiner else None
+    if clip:
+        from .geometry import clip_to_box
+
+        hs = m.half_side
+        coarse_t = clip_to_box(coarse_t, -hs, hs)
+        refined_t = clip_to_box(refined_t, -hs, hs) if refined_t is not None else None
+    return SVRPrediction(coarse=coarse_t, refined=refined_t)
+
+
+def predict(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
+            refine: Optional[bool] = None) -> renderer.SDFGrid:
+    """SDF grids predicted from images: the model's final output (see ``predict_sdf``).
+
+    Returns:
+        renderer.SDFGrid with values (B, N, N, N) float32 on the model's device and the box
+        ``[-half_side, half_side]^3`` (world, y up, NMR ShapeNet frame).
+    """
+    m = as_model(model)
+    out = predict_sdf(m, images, batch_size, refine)
+    return renderer.SDFGrid(out.final, -m.half_side, m.half_side)
+
+
+__all__ = ["LoadedModel", "ModelLike", "load_model", "as_model", "resolve_device", "check_images", "predict_sdf",
+           "predict"]
