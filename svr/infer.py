@@ -51,148 +51,15 @@ from sdfcommon.checks import check_int
 from sdfcommon.cli import config_bool, config_int, config_ints, config_value, hydra_entry
 from sdfcommon.outputs import ensure_output_dir
 
-from .data.nmr import check_view_ids, images_to_float
+from .data.nmr import check_view_ids
+from .images import find_images, find_mask, load_image
 from .prediction import ModelLike, as_model, load_model, predict
 from .rendering import PREVIEW_VIEWS, render_previews
 
 log = logging.getLogger(__name__)
 
 PathLike = Union[str, os.PathLike]
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 OUTPUT_FORMATS = ("npz", "ply", "obj", "png")
-
-
-# ------------------------------------------------------------------------------------------------
-# Images
-
-
-def _open_image(path: Path, what: str):
-    from PIL import Image, UnidentifiedImageError
-
-    if not path.is_file():
-        raise FileNotFoundError(f"{what} not found: {path}")
-    try:
-        img = Image.open(path)
-        img.load()
-    except Image.DecompressionBombError:
-        raise ValueError(f"{path}: the {what} is too large to read safely (more than twice PIL's "
-                         f"Image.MAX_IMAGE_PIXELS = {Image.MAX_IMAGE_PIXELS} pixels); shrink it first") from None
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as err:
-        raise ValueError(f"{path}: cannot read the {what} ({err})") from None
-    return img
-
-
-def check_silhouette(alpha: np.ndarray, name: str) -> None:
-    """Refuses a silhouette that cannot be an object on a background: empty (no pixel opaque: a
-    fully transparent image or a black mask) or covering the image's whole border (an inverted
-    mask: object transparent, background opaque; an object of the benchmark's framing never
-    touches all four edges). Opaque: alpha >= 128 of 255.
-
-    Args:
-        alpha: (H, W) uint8 alpha channel or mask (255 = object).
-    Raises:
-        ValueError naming ``name`` and saying which.
-    """
-    opaque = np.asarray(alpha) >= 128
-    if not opaque.any():
-        raise ValueError(f"{name}: the silhouette is empty (no opaque pixel: a fully transparent image or a "
-                         f"black mask); the object must be opaque (alpha or mask white) on a transparent background")
-    border = np.concatenate([opaque[0], opaque[-1], opaque[:, 0], opaque[:, -1]])
-    if border.all():
-        raise ValueError(f"{name}: the silhouette covers the whole image border, so the mask looks inverted "
-                         f"(object transparent, background opaque); the object must be opaque (alpha or mask "
-                         f"white) and the background transparent (black in a mask)")
-
-
-def _has_alpha(img) -> bool:
-    return img.mode in ("RGBA", "LA", "PA", "La", "RGBa") or (img.mode == "P" and "transparency" in img.info)
-
-
-def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int = 64) -> torch.Tensor:
-    """Reads one input image for the network.
-
-    RGBA (or grey + alpha, or a palette with transparency) is used as is; RGB or grey needs a mask
-    file (any mode, read as grey: white = object), which replaces the alpha channel. A non-square
-    image is padded to a square (transparent, white); any other size is resized to
-    ``image_size`` (area averaging when shrinking), with a warning. The result is converted like the
-    datasets' images (``svr.data.nmr.images_to_float``: RGB on white).
-
-    The silhouette must be an object on a background (``check_silhouette``): a fully transparent
-    image or an inverted mask is refused.
-
-    Returns:
-        (4, S, S) float32 RGBA in [0, 1].
-    Raises:
-        FileNotFoundError / ValueError naming the image or mask file.
-    """
-    from PIL import Image
-
-    path = Path(path)
-    img = _open_image(path, "image")
-    if mask is not None:
-        mpath = Path(mask)
-        m = _open_image(mpath, "mask").convert("L")
-        if m.size != img.size:
-            raise ValueError(f"{mpath}: mask size {m.size} differs from the image {path} size {img.size}")
-        rgba = img.convert("RGB").convert("RGBA")
-        rgba.putalpha(m)
-    elif _has_alpha(img):
-        rgba = img.convert("RGBA")
-    else:
-        raise ValueError(f"{path}: the image has no alpha channel ({img.mode}); give an RGBA image or a mask "
-                         f"file (masks=[...], or <stem>_mask.png beside it)")
-    check_silhouette(np.asarray(rgba.getchannel("A")), str(mask if mask is not None else path))
-    w, h = rgba.size
-    if (w, h) != (image_size, image_size):
-        warnings.warn(f"{path}: {w}x{h} image resized to {image_size}x{image_size}"
-                      + (" (padded to a square first)" if w != h else ""), UserWarning, stacklevel=2)
-        if w != h:
-            side = max(w, h)
-            square = Image.new("RGBA", (side, side), (255, 255, 255, 0))
-            square.paste(rgba, ((side - w) // 2, (side - h) // 2))
-            rgba = square
-        resample = Image.Resampling.BOX if rgba.size[0] > image_size else Image.Resampling.BILINEAR
-        rgba = rgba.resize((image_size, image_size), resample)
-    arr = np.asarray(rgba, dtype=np.uint8).transpose(2, 0, 1)  # (4, S, S), row 0 = top
-    return images_to_float(arr, "composite")
-
-
-def find_images(inputs: Union[PathLike, Sequence[PathLike]], mask_suffix: str = "_mask") -> list[Path]:
-    """Expands image paths and folders (every PNG/JPEG in a folder, sorted, except masks: files whose
-    stem ends with ``mask_suffix``).
-
-    Raises:
-        ValueError when nothing is given or a folder holds no image; FileNotFoundError naming a
-        missing path.
-    """
-    items = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
-    if not items:
-        raise ValueError("images must name at least one image file or folder")
-    out: list[Path] = []
-    for item in items:
-        p = Path(item).expanduser()
-        if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES
-                           and not (mask_suffix and f.stem.endswith(mask_suffix)))
-            if not found:
-                raise ValueError(f"images: the folder {p} holds no PNG/JPEG image")
-            out.extend(found)
-        elif p.exists():
-            out.append(p)
-        else:
-            raise FileNotFoundError(f"image not found: {p}")
-    return out
-
-
-def find_mask(image: Path, mask_suffix: str = "_mask") -> Optional[Path]:
-    """``<stem><mask_suffix>.<ext>`` beside the image (PNG/JPEG), if there is one."""
-    if not mask_suffix:
-        return None
-    for ext in (image.suffix, *IMAGE_SUFFIXES):
-        cand = image.with_name(f"{image.stem}{mask_suffix}{ext}")
-        if cand.is_file():
-            return cand
-    return None
 
 
 # ------------------------------------------------------------------------------------------------
@@ -429,5 +296,5 @@ if __name__ == "__main__":
     main()
 
 
-__all__ = ["Reconstruction", "load_image", "find_images", "find_mask", "reconstruct", "preview_picture",
-           "save_reconstruction", "infer_files", "check_silhouette", "check_formats", "run", "main", "OUTPUT_FORMATS"]
+__all__ = ["Reconstruction", "reconstruct", "preview_picture", "save_reconstruction", "infer_files", "check_formats",
+           "run", "main", "OUTPUT_FORMATS"]

@@ -1,25 +1,24 @@
-"""The benchmark's report: an evaluation's per-category IoU as the paper's table (categories as
+"""The benchmark's results and report: ``EvaluationResult`` (per-image IoU of one model on one
+split, its per-category tables, baselines and JSON summary) and the paper's table (categories as
 columns, mean last, the paper's reference rows for NMR ShapeNet, baselines and other rows scored on
 the same images), its notes, and the files ``svr.evaluate`` and the demo write (``table.md``,
 ``table.csv``, ``iou.json``, ``per_object.csv``, ``per_image.csv``).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Mapping, Optional, Sequence, Union
+from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
 from sdfcommon.outputs import ensure_output_dir, write_csv, write_json, write_text
 
-from .data.nmr import NMR_CATEGORIES
-from .metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable
-
-if TYPE_CHECKING:
-    from .evaluate import EvaluationResult
+from .data.nmr import NMR_CATEGORIES, NUM_VIEWS
+from .metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table
 
 PathLike = Union[str, os.PathLike]
 NMR_CATEGORY_IDS = frozenset(cid for cid, _ in NMR_CATEGORIES)
@@ -51,6 +50,162 @@ PAPER_REFERENCE_ROWS: tuple[ReferenceRow, ...] = (
 
 
 
+@dataclass(frozen=True)
+class EvaluationResult:
+    """Per-image benchmark IoU of one model on one split, and its tables.
+
+    Per-image arrays have one entry per prediction (M = objects x views), in the order category,
+    object, view.
+
+    Attributes:
+        split: "train", "val" or "test".
+        dataset: a description of the data (kind and folder).
+        categories: the data's (category id, name) pairs; ``category`` indexes them.
+        is_nmr_shapenet: the data is real NMR ShapeNet (the paper's reference rows apply); procedural
+            data with the same category ids is not.
+        checkpoint: the model's file (None for a network given directly); stage: its training stage.
+        output: which SDF the main row scores: "refined" or "coarse".
+        category, object_index, view: (M,) int64.
+        iou: (M,) float64 benchmark IoU of ``output``; iou_coarse: (M,) of the coarse SDF, or None.
+        voxels: (M, 32, 32, 32) bool predicted voxels (NMR frame) of ``output``, if kept.
+        baselines: baseline name (``svr.baselines.BASELINES``) -> (M,) float64 IoU on the same images
+            (``add_baselines``).
+        views_per_object: views evaluated per object (24 for the protocol).
+        full_protocol: every view of every object was evaluated (no thinning).
+        seconds: wall time.
+    """
+
+    split: str
+    dataset: str
+    categories: tuple[tuple[str, str], ...]
+    is_nmr_shapenet: bool
+    checkpoint: Optional[str]
+    stage: str
+    output: str
+    category: np.ndarray
+    object_index: np.ndarray
+    view: np.ndarray
+    iou: np.ndarray
+    iou_coarse: Optional[np.ndarray] = None
+    voxels: Optional[np.ndarray] = None
+    views_per_object: int = NUM_VIEWS
+    full_protocol: bool = True
+    seconds: float = 0.0
+    baselines: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def table(self) -> IoUTable:
+        """Per-category IoU of ``output`` and their unweighted mean (``svr.metrics.iou_table``)."""
+        return iou_table(self.iou, self.category, self.categories)
+
+    @property
+    def coarse_table(self) -> Optional[IoUTable]:
+        return iou_table(self.iou_coarse, self.category, self.categories) if self.iou_coarse is not None else None
+
+    def baseline_table(self, name: str) -> IoUTable:
+        """Per-category IoU of a baseline on the same images."""
+        return iou_table(self.baselines[name], self.category, self.categories)
+
+    def minus_retrieval(self) -> Optional[IoUTable]:
+        """Per category, our IoU minus the retrieval baseline's (None without that baseline)."""
+        if "retrieval" not in self.baselines:
+            return None
+        ours, ret = self.table, self.baseline_table("retrieval")
+        rows = tuple(dataclasses.replace(a, iou=a.iou - b.iou) for a, b in zip(ours.rows, ret.rows))
+        return IoUTable(rows, ours.mean - ret.mean)
+
+    @property
+    def present(self) -> list[int]:
+        """Indices of the categories with at least one image: the table's columns, in the data's
+        order, or in the paper's table order when every category is an NMR ShapeNet one."""
+        cols = sorted(set(int(c) for c in np.unique(self.category)))
+        if self.categories and all(c in NMR_CATEGORY_IDS for c, _ in self.categories):
+            order = {cid: k for k, (cid, _) in enumerate(NMR_CATEGORIES)}
+            cols.sort(key=lambda c: order[self.categories[c][0]])
+        return cols
+
+    @property
+    def mean(self) -> float:
+        return self.table.mean
+
+    def index_of(self, category: int, object_index: int, view: int) -> int:
+        """Position in the per-image arrays of (category index, object index, view).
+
+        Raises:
+            KeyError when that image was not evaluated.
+        """
+        hit = np.flatnonzero((self.category == category) & (self.object_index == object_index) & (self.view == view))
+        if not len(hit):
+            raise KeyError(f"(category {category}, object {object_index}, view {view}) was not evaluated")
+        return int(hit[0])
+
+    def per_object(self) -> list[dict[str, Any]]:
+        """One row per object: mean and worst IoU over its views and the worst view; worst objects first."""
+        rows = []
+        keys = np.stack([self.category, self.object_index], axis=1)
+        uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        for n, (c, o) in enumerate(uniq):
+            sel = np.flatnonzero(inverse == n)
+            worst = sel[int(np.argmin(self.iou[sel]))]
+            cid, name = self.categories[int(c)]
+            row = {"category_id": cid, "category": name, "object_index": int(o), "views": len(sel),
+                   "iou_mean": float(self.iou[sel].mean()), "iou_min": float(self.iou[worst]),
+                   "worst_view": int(self.view[worst])}
+            if self.iou_coarse is not None:
+                row["iou_coarse_mean"] = float(self.iou_coarse[sel].mean())
+            for name, values in self.baselines.items():
+                row[f"iou_{name}_mean"] = float(values[sel].mean())
+            rows.append(row)
+        rows.sort(key=lambda r: (r["iou_mean"], r["category_id"], r["object_index"]))
+        return rows
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready summary: ``{"split", "categories": {name: iou}, "mean", ...}`` (present categories)."""
+        table = self.table
+        rows = [table.rows[c] for c in self.present]
+        out: dict[str, Any] = {
+            "split": self.split,
+            "dataset": self.dataset,
+            "checkpoint": self.checkpoint,
+            "stage": self.stage,
+            "output": self.output,
+            "categories": {r.name: r.iou for r in rows},
+            "mean": table.mean,
+            "images": {r.name: r.images for r in rows},
+            "category_ids": {r.name: r.category_id for r in rows},
+            "num_images": int(len(self.iou)),
+            "num_objects": int(len(np.unique(np.stack([self.category, self.object_index], 1), axis=0)))
+            if len(self.iou) else 0,
+            "views_per_object": self.views_per_object,
+            "full_protocol": self.full_protocol,
+            "protocol": "marching cubes of each view's SDF -> NMR 32^3 voxelisation (dilated surface, "
+                        "vertices, 6-connected fill) -> IoU per image; category = mean over its images; "
+                        "mean = unweighted mean over categories",
+            "seconds": self.seconds,
+        }
+
+        def summary(t: IoUTable) -> dict[str, Any]:
+            return {"categories": {t.rows[c].name: t.rows[c].iou for c in self.present}, "mean": t.mean}
+
+        coarse = self.coarse_table
+        if coarse is not None:
+            out["coarse"] = summary(coarse)
+        if self.baselines:
+            from .baselines import DESCRIPTIONS, LABELS
+
+            out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
+                                       **summary(self.baseline_table(name))} for name in self.baselines}
+        minus = self.minus_retrieval()
+        if minus is not None:
+            out["ours_minus_retrieval"] = summary(minus)
+        if self.is_nmr_shapenet:
+            out["reference"] = {r.method: {"mean": r.mean, "categories": {
+                name: r.categories[cid] for cid, name in self.categories if cid in r.categories}}
+                for r in PAPER_REFERENCE_ROWS}
+        return out
+
+
 def format_iou(x: Optional[float], signed: bool = False) -> str:
     """An IoU as printed in the tables: 4 decimals (signed for differences), blank when unknown."""
     return "" if x is None or not math.isfinite(x) else (f"{x:+.4f}" if signed else f"{x:.4f}")
@@ -67,7 +222,7 @@ def _check_extra(extra_rows: ExtraRows) -> dict[str, IoUTable]:
     return out
 
 
-def table_rows(result: "EvaluationResult", extra_rows: ExtraRows = None,
+def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
                label: Optional[str] = None) -> tuple[list[str], list[list[str]]]:
     """The paper's layout as strings: header ``["method", <category names>..., "mean"]`` and rows
     (ours, ours coarse, the ``extra_rows``, the image counts, then the reference rows for NMR
@@ -105,7 +260,7 @@ def table_rows(result: "EvaluationResult", extra_rows: ExtraRows = None,
     return header, rows
 
 
-def table_notes(result: "EvaluationResult") -> list[str]:
+def table_notes(result: EvaluationResult) -> list[str]:
     """The lines printed under the table (what the numbers are and where they come from)."""
     notes = []
     if not result.full_protocol:
@@ -134,7 +289,7 @@ def table_notes(result: "EvaluationResult") -> list[str]:
     return notes
 
 
-def format_table(result: "EvaluationResult", extra_rows: ExtraRows = None, label: Optional[str] = None) -> str:
+def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: Optional[str] = None) -> str:
     """The markdown report: a title line, the table in the paper's layout (categories as columns,
     mean last; reference rows for NMR ShapeNet), then the notes. Columns are padded for terminals.
     ``extra_rows`` and ``label``: see ``table_rows``."""
@@ -152,7 +307,7 @@ def format_table(result: "EvaluationResult", extra_rows: ExtraRows = None, label
     return "\n".join([title, ""] + body + [""] + [f"- {n}" for n in table_notes(result)]) + "\n"
 
 
-def write_report(result: "EvaluationResult", output_dir: PathLike, extra_rows: ExtraRows = None,
+def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: ExtraRows = None,
                  label: Optional[str] = None) -> dict[str, Path]:
     """Writes ``table.md``, ``table.csv``, ``iou.json``, ``per_object.csv`` (worst first) and
     ``per_image.csv`` into ``output_dir``, each atomically (``sdfcommon.outputs``: temp file + ``os.replace``;
@@ -193,5 +348,5 @@ def write_report(result: "EvaluationResult", output_dir: PathLike, extra_rows: E
     return files
 
 
-__all__ = ["ReferenceRow", "PAPER_REFERENCE_ROWS", "NMR_CATEGORY_IDS", "ExtraRows", "format_iou", "table_rows", "table_notes",
+__all__ = ["EvaluationResult", "ReferenceRow", "PAPER_REFERENCE_ROWS", "NMR_CATEGORY_IDS", "ExtraRows", "format_iou", "table_rows", "table_notes",
            "format_table", "write_report"]

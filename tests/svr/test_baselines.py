@@ -12,8 +12,7 @@ from svr.baselines import (BASELINES, category_mean_shapes, check_baselines, mea
                            protocol_voxels_of_voxels, retrieve, score_baselines)
 from svr.data.nmr import NMR_CATEGORIES, NMRDataset, nmr_file, prepare_nmr
 from svr.data.procedural import dataset_shape
-from svr.evaluate import EvaluationResult
-from svr.report import format_table, table_rows, write_report
+from svr.report import EvaluationResult, format_table, table_rows, write_report
 from svr.metrics import voxel_iou
 
 

@@ -21,9 +21,9 @@ import torch
 
 from svr.data.datamodule import ProceduralDataModule
 from svr.data.nmr import NMR_CATEGORIES
-from svr.evaluate import EvaluationResult, evaluate, main
+from svr.evaluate import evaluate, main
 from svr.prediction import load_model, predict
-from svr.report import format_table, table_rows, write_report
+from svr.report import EvaluationResult, format_table, table_rows, write_report
 from svr.metrics import iou_protocol, iou_table
 
 from ..entry_points import expect_usage_error, run_entry

@@ -18,7 +18,8 @@ from PIL import Image
 import renderer
 from svr.evaluate import evaluate
 from svr.geometry import voxelize_mesh_nmr
-from svr.infer import infer_files, load_image, main, reconstruct
+from svr.images import load_image
+from svr.infer import infer_files, main, reconstruct
 from svr.prediction import check_images, load_model, predict, predict_sdf, resolve_device
 from svr.metrics import voxel_iou
 
