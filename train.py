@@ -2,7 +2,7 @@
 
 See configs/train.yaml for the commands and svr/training.py for what runs.
 """
-from svr.train_main import main
+from svr.training import main
 
 if __name__ == "__main__":
     main()

@@ -363,6 +363,10 @@ def hydra_entry(prog: str, config_name: str, task: Callable[[DictConfig], Any],
         argv = list(sys.argv)
         if GUARD_OVERRIDE not in sys.argv:
             sys.argv.append(GUARD_OVERRIDE)
+        if not any(a.startswith("hydra.job.name=") for a in sys.argv[1:]):
+            # hydra names the job (and its log, <name>.log) after the file that holds hydra.main,
+            # which is this one for every entry point: name it after the command's config instead.
+            sys.argv.append(f"hydra.job.name={config_name}")
         try:
             _hydra_main()
         finally:

@@ -1,7 +1,9 @@
-"""The three-stage training schedule of paper section 6, driven by a composed hydra config.
-
-This is the body of the entry points (``train.py``, ``sdfdiff-train``, ``python -m svr.demo``): it
-reads the config and instantiates everything else (``_target_``) into plain objects.
+"""The three-stage training schedule of paper section 6, driven by a composed hydra config, and its
+entry point: ``python train.py`` / ``sdfdiff-train`` (``main``: hydra composes configs/train.yaml
+with the overrides; ``run`` trains in hydra's run folder, ``outputs/train/<time>`` by default, one
+folder per job with ``-m``). ``train`` is the body (also of ``python -m svr.demo``): it reads the
+config and instantiates everything else (``_target_``) into plain objects. Resuming a run:
+``svr.resume``.
 
 Run folder layout (``run_dir``)::
 
@@ -24,13 +26,14 @@ from __future__ import annotations
 import contextlib
 import csv
 import logging
+import os
 import signal
 import sys
 import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Optional
 
 import pytorch_lightning as pl
 from hydra.utils import instantiate
@@ -40,19 +43,19 @@ from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
+from sdfcommon.cli import hydra_entry
 from sdfcommon.outputs import remove_stale_temporaries, write_csv, write_text
 
 from .callbacks import AtomicCheckpointIO
+from .checkpoints import CHECKPOINT_KEY, STAGES, check_stage, load_checkpoint, load_network_weights
 from .distributed import launch_rank_is_zero
 from .host_memory import keep_freed_memory
 from .losses import LossWeights
-from .checkpoints import CHECKPOINT_KEY, STAGES, check_stage, load_checkpoint, load_network_weights
 from .models.module import SVRLightningModule
 from .models.network import SVRNet
+from .resume import latest_checkpoint, resume_arguments, resumed_config, run_folder_of, slurm_arguments
 
 log = logging.getLogger(__name__)
-
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
 
 SHADING_MODES = ("auto", True, False)
 INIT_FROM = ("best", "final")
@@ -338,113 +341,6 @@ def plan_schedule(schedule: list[str], ckpt_stage: Optional[str]) -> tuple[int, 
     return 0, False
 
 
-# ------------------------------------------------------------------------------------------------
-# Resuming a run
-
-
-def run_folder_of(ckpt_path: str | Path) -> Optional[Path]:
-    """The training run a checkpoint belongs to: ``RUN`` for ``RUN/<stage>/checkpoints/<name>.ckpt``
-    (or ``RUN/<stage>/hpc_ckpt_<n>.ckpt``) when ``RUN/config.yaml`` exists (a folder this module
-    wrote); None otherwise."""
-    p = Path(ckpt_path).expanduser().resolve()
-    if p.parent.name == "checkpoints" and p.parent.parent.name in STAGES:
-        run = p.parent.parent.parent
-    elif p.name.startswith("hpc_ckpt_") and p.parent.name in STAGES:  # Lightning's SLURM checkpoints
-        run = p.parent.parent
-    else:
-        return None
-    return run if (run / "config.yaml").is_file() else None
-
-
-def latest_checkpoint(run_dir: str | Path, schedule: Sequence[str]) -> Optional[Path]:
-    """What a stopped run resumes from: the newest of ``last.ckpt``, ``final.ckpt`` and Lightning's
-    SLURM checkpoints (``<stage>/hpc_ckpt_<n>.ckpt``) of the latest scheduled stage that wrote one
-    (None: no stage has)."""
-    for stage in reversed(list(schedule)):
-        d = Path(run_dir) / stage / "checkpoints"
-        found = [d / n for n in ("final.ckpt", "last.ckpt") if (d / n).is_file()]
-        found += [f for f in (Path(run_dir) / stage).glob("hpc_ckpt_*.ckpt") if f.is_file()]
-        if found:
-            return max(found, key=lambda f: f.stat().st_mtime_ns)
-    return None
-
-
-# What may differ from a run's saved config when it is resumed: where and how fast it runs, and
-# how long the stages train. Everything else (model, data, losses, schedule) must stay.
-RESUMABLE_KEYS = ("ckpt_path", "trainer.", "data.num_workers", "data.pin_memory", "data.progress",
-                  "data.generation_workers", "stage.*.max_steps", "stage.*.max_time", "callbacks.progress_bar.")
-
-
-def _may_change(key: str) -> bool:
-    parts = key.split(".")
-    for pattern in RESUMABLE_KEYS:
-        pat = pattern.rstrip(".").split(".")
-        if len(parts) < len(pat) or (not pattern.endswith(".") and len(parts) != len(pat)):
-            continue
-        if all(q == "*" or q == k for q, k in zip(pat, parts)):
-            return True
-    return False
-
-
-def _leaves(node: Any, prefix: str = "") -> dict[str, Any]:
-    if isinstance(node, dict) and node:
-        out: dict[str, Any] = {}
-        for k, v in node.items():
-            out.update(_leaves(v, f"{prefix}{k}."))
-        return out
-    return {prefix[:-1]: node}
-
-
-def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[str]) -> tuple[DictConfig, list[str]]:
-    """The config a resumed run goes on with: the run's saved ``config.yaml``, with the requested
-    (freshly composed) config's values where they are allowed to change (``RESUMABLE_KEYS``).
-
-    Only settings the command line names (``overrides``, hydra's syntax) count as requested; what
-    it leaves at the defaults comes from the run. Raises ValueError naming requested settings that
-    would change the run (the model, the data, ...).
-
-    Returns:
-        (config, the changes made, "key: old -> new").
-    """
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
-    saved_leaves = _leaves(OmegaConf.to_container(saved, resolve=True))
-    requested_leaves = _leaves(OmegaConf.to_container(requested, resolve=True))
-    touched: list[str] = []
-    for o in OverridesParser.create().parse_overrides(list(overrides)):
-        key = o.key_or_group
-        if key.startswith("hydra"):
-            continue
-        if o.is_delete():
-            raise ValueError(f"{o.input_line}: a resumed run keeps its settings; ~ (delete) is not possible")
-        if (CONFIG_DIR / key).is_dir() and "." not in key:
-            # A config group: its own key, or the whole config for a global one (experiment=...).
-            touched.append(key if key in saved else "")
-        else:
-            touched.append(key)
-
-    def requested_here(path: str) -> bool:
-        return any(t == "" or path == t or path.startswith(t + ".") for t in touched)
-
-    merged = saved.copy()
-    changes, refused = [], []
-    missing = object()
-    for path in sorted(set(saved_leaves) | set(requested_leaves)):
-        old, new = saved_leaves.get(path, missing), requested_leaves.get(path, missing)
-        if old == new or not requested_here(path):
-            continue
-        if not _may_change(path):
-            refused.append(path)
-            continue
-        OmegaConf.update(merged, path, None if new is missing else new, merge=False)
-        changes.append(f"{path}: {None if old is missing else old!r} -> {None if new is missing else new!r}")
-    if refused:
-        shown = ", ".join(refused[:4]) + (f" and {len(refused) - 4} more" if len(refused) > 4 else "")
-        raise ValueError(f"resuming a run keeps its config.yaml; the command line would change {shown}. Only "
-                         f"{', '.join(k.rstrip('.') for k in RESUMABLE_KEYS)} may change (start a new run instead)")
-    return merged, changes
-
-
 def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
     """Runs the stages of ``cfg.stage.schedule`` in order (see the module docstring).
 
@@ -592,5 +488,45 @@ def _stopped(trainer: pl.Trainer, stage: str, run_dir: Path) -> TrainingStopped:
     return TrainingStopped(message, checkpoint=saver.path)
 
 
-__all__ = ["train", "StageResult", "TrainResult", "TrainingStopped", "build_module", "build_scene", "build_trainer",
-           "plan_schedule", "run_folder_of", "latest_checkpoint", "resume_config", "RESUMABLE_KEYS"]
+# ------------------------------------------------------------------------------------------------
+# The entry point: python train.py / sdfdiff-train
+
+
+def run(cfg: DictConfig) -> float | None:
+    """Trains in hydra's run folder (see the module docstring); returns the last stage's best
+    validation IoU (for hydra sweepers)."""
+    from hydra.core.hydra_config import HydraConfig
+
+    hydra_cfg = HydraConfig.get()
+    run_dir = Path(hydra_cfg.runtime.output_dir)
+    # Rank zero only: it writes config.yaml before the other processes of a DDP run start or look.
+    if cfg.get("ckpt_path") is None and launch_rank_is_zero() and (run_dir / "config.yaml").is_file():
+        raise ValueError(f"hydra.run.dir={run_dir} already holds a training run: resume it with "
+                         f"ckpt_path={run_dir}, or give another hydra.run.dir")
+    cfg = resumed_config(cfg, run_dir, list(hydra_cfg.overrides.task))
+    result = train(cfg, run_dir)
+    for s in result.stages:
+        log.info("%s: best val IoU %s  best %s  final %s", s.stage, s.best_val_iou, s.best, s.final)
+    print(f"run folder: {result.run_dir}")
+    return result.stages[-1].best_val_iou if result.stages else None
+
+
+_hydra_main = hydra_entry("sdfdiff-train", "train", run)
+
+
+def main() -> None:
+    """``python train.py`` / ``sdfdiff-train``: SLURM and resume settings (``slurm_arguments``,
+    ``resume_arguments``) added to the command line, then hydra and ``run`` under the shared error
+    handling of every entry point (``sdfcommon.cli``: a user's mistake is one line, exit status 2;
+    a SIGTERM exits 143)."""
+    argv = list(sys.argv)
+    sys.argv.extend(slurm_arguments(sys.argv[1:], os.environ))
+    sys.argv.extend(resume_arguments(sys.argv[1:]))
+    try:
+        _hydra_main()
+    finally:
+        sys.argv[:] = argv
+
+
+__all__ = ["train", "run", "main", "StageResult", "TrainResult", "TrainingStopped", "build_module", "build_scene",
+           "build_trainer", "plan_schedule"]

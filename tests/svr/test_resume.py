@@ -18,8 +18,8 @@ import torch
 from omegaconf import OmegaConf
 
 from svr.checkpoints import load_checkpoint
-from svr.train_main import resume_arguments, slurm_arguments
-from svr.training import TrainingStopped, latest_checkpoint, resume_config, run_folder_of, train
+from svr.resume import latest_checkpoint, resume_arguments, resume_config, run_folder_of, slurm_arguments
+from svr.training import TrainingStopped, train
 
 from .test_train import compose_train, state, tiny_overrides
 
@@ -239,6 +239,7 @@ def test_training_console_has_no_known_noise(tmp_path, data_overrides):
                            cwd=tmp_path, capture_output=True, text=True, timeout=300)  # resume to train longer
     assert again.returncode == 0, again.stderr[-2000:]
     assert "with a changed setting: stage.refine.max_steps: 2 -> 3" in again.stdout + again.stderr  # said loudly
+    assert (tmp_path / "run" / "train.log").is_file()  # hydra's log is named after the command
     for out in (first.stdout + first.stderr, again.stdout + again.stderr):
         for noise in ("Tip:", "LeafSpec", "in eval mode", "weights_only", "exists and is not empty"):
             assert noise not in out, f"{noise!r} printed"
