@@ -51,9 +51,9 @@ def renderer_devices(cuda: bool = True) -> tuple[str, ...]:
     """The renderer part's devices: the CPU, and CUDA where ``cuda`` and its fused kernel runs."""
     if not cuda:
         return ("cpu",)
-    from renderer import kernels
+    import renderer
 
-    return ("cpu", "cuda") if kernels.available("cuda")[0] else ("cpu",)
+    return ("cpu", "cuda") if renderer.backend_available("cuda")[0] else ("cpu",)
 
 
 def run_part(part: str, docs: Path, work: Path, quick: bool, cuda: bool, svr_steps: Optional[tuple[int, int]],

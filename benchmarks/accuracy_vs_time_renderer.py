@@ -31,8 +31,7 @@ import torch
 
 from benchmarks.renderer_speed import median_times_ms
 from benchmarks.report import Point, cheapest_within, fmt_value, progress_log, tradeoff_section
-from renderer import Cameras, DirectionalLight, SDFGrid, Scene, TraceSettings, render
-from renderer.demo import torus_and_sphere
+from renderer import Cameras, DirectionalLight, SDFGrid, Scene, TraceSettings, render, torus_and_sphere
 
 VIEWS = 4
 REFERENCE_THRESHOLD_VOXELS = 1e-4  # the reference's hit threshold, in voxels of its grid

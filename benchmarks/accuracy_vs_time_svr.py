@@ -121,12 +121,9 @@ def run_overrides(run: Run, data: Sequence[str], steps: tuple[int, int], val_eve
 
 def compose_train(overrides: Sequence[str]):
     """configs/train.yaml composed with overrides, outside a hydra run."""
-    from hydra import compose, initialize_config_dir
+    from sdfcommon.cli import compose
 
-    from svr.train_main import CONFIG_DIR
-
-    with initialize_config_dir(config_dir=CONFIG_DIR, version_base="1.3"):
-        return compose("train", overrides=list(overrides))
+    return compose("train", overrides)
 
 
 def read_timeline(path: Path, start_wall: float, start_cpu: float) -> list[dict]:

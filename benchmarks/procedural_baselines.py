@@ -40,17 +40,15 @@ def baseline_table(preset: str = "bench", split: str = "test", cache_dir: Option
     Returns:
         (markdown table, {baseline: {"categories": {name: iou}, "mean": iou}}).
     """
-    from hydra import compose, initialize_config_dir
     from hydra.utils import instantiate
 
+    from sdfcommon.cli import compose
     from svr.baselines import BASELINES, LABELS, score_baselines
     from svr.evaluate import EvaluationResult
     from svr.metrics import iou_table
 
     extra = [f"data.cache_dir={cache_dir}"] if cache_dir is not None else []
-    with initialize_config_dir(config_dir=str(ROOT / "configs"), version_base="1.3"):
-        cfg = compose("eval", overrides=[f"data={PRESETS[preset]}", f"data.progress={progress}", *extra,
-                                         *overrides])
+    cfg = compose("eval", [f"data={PRESETS[preset]}", f"data.progress={progress}", *extra, *overrides])
     dm = instantiate(cfg.data)  # the data module training uses: the same folder, generated if missing
     dm.prepare_data()
     settings = dm.settings

@@ -52,9 +52,8 @@ from pathlib import Path
 import torch
 
 import renderer
-import renderer.kernels
-from sdfcommon.outputs import write_text
 from renderer import Cameras, Scene, SDFGrid, render, sphere_trace
+from sdfcommon.outputs import write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -339,7 +338,7 @@ def main(argv: list[str] | None = None) -> None:
         return
     device = torch.device(args.device)
     for backend in ("cpu", fused_backend(device)):
-        ok, why = renderer.kernels.available(backend)
+        ok, why = renderer.backend_available(backend)
         if not ok:
             raise SystemExit(f"--device {args.device}: the fused {backend} march is unavailable: {why}")
     repeats = args.repeats or (1 if args.quick else 5)

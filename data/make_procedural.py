@@ -29,10 +29,9 @@ PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<n
 
 def preset_settings(name: str) -> dict:
     """The dataset settings of a data preset, as hydra composes ``data=<preset>`` for training."""
-    from hydra import compose, initialize_config_dir
+    from sdfcommon.cli import compose
 
-    with initialize_config_dir(config_dir=str(REPO / "configs"), version_base="1.3"):
-        cfg = compose("eval", overrides=[f"data={PRESETS[name]}"]).data
+    cfg = compose("eval", [f"data={PRESETS[name]}"]).data
     return {"categories": cfg.categories or (), "train": cfg.train, "val": cfg.val, "test": cfg.test,
             "seed": cfg.data_seed, "supersample": cfg.supersample, "voxel_rule": cfg.voxel_rule}
 

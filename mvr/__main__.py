@@ -17,7 +17,7 @@ from typing import Sequence
 
 from omegaconf import DictConfig
 
-from sdfcommon.cli import CONFIG_DIR, config_bool, config_int, config_object, config_value, hydra_entry
+from sdfcommon.cli import compose, config_bool, config_int, config_object, config_value, hydra_entry
 
 # The settings nodes (each a ``_target_``) and the keyword of ``mvr.reconstruct`` they become.
 SETTINGS_NODES = {"rig": "rig", "grid": "grid", "target_settings": "target_settings", "schedule": "schedule",
@@ -36,10 +36,7 @@ def reconstruct_kwargs(cfg: DictConfig) -> dict:
 
 def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
     """configs/mvr.yaml with hydra overrides, outside a hydra run (for benchmarks and tests)."""
-    from hydra import compose, initialize_config_dir
-
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
-        return compose(config_name="mvr", overrides=list(overrides))
+    return compose("mvr", overrides)
 
 
 def run(cfg: DictConfig) -> float:

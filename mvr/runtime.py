@@ -60,9 +60,9 @@ def configure_runtime(threads: Optional[int] = 1, tune_malloc: bool = True, flus
             # Setting numba's thread count starts its thread pool: let the renderer's kernels start
             # it first, with the pool they choose (see renderer/kernels: GNU OpenMP's spinning
             # workers slowed the PyTorch code after each march on shared machines).
-            from renderer import kernels
+            import renderer
 
-            kernels.available("cpu")
+            renderer.backend_available("cpu")
             numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
         except (ImportError, ValueError):
             pass

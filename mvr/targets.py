@@ -5,7 +5,7 @@ A target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a bui
 so that the longest side of its bounding box is ``extent`` (world units).
 
 The target images come from the mesh itself: rays through the pixel centres of our cameras are cast
-against its triangles (``mvr.raycast``) and the hits are shaded by ``renderer.shading.shade_lambert``
+against its triangles (``mvr.raycast``) and the hits are shaded by ``renderer.shade_lambert``
 with the same scene (lights, ambient, albedo, background) the optimiser renders with. The optimiser
 never sees an image made by its own renderer.
 
@@ -24,8 +24,7 @@ import numpy as np
 import torch
 import trimesh
 
-from renderer import Cameras, Scene
-from renderer.shading import shade_lambert
+from renderer import Cameras, Scene, shade_lambert
 from sdfcommon.geometry import sdf_to_mesh
 
 from .raycast import TriangleGrid

@@ -19,17 +19,20 @@ import os as _os
 
 _os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
 
-from .cameras import Cameras  # noqa: E402
+from .cameras import NMR_NUM_VIEWS, Cameras  # noqa: E402
+from .examples import torus_and_sphere  # noqa: E402
 from .grid import SDFGrid  # noqa: E402
 from .render import RenderOutput, render, shade_trace  # noqa: E402
 from .scene import EFFECTS, DirectionalLight, PointLight, Scene  # noqa: E402
 from .settings import TraceSettings  # noqa: E402
 from .kernels import start_cpu_thread_pool  # noqa: E402
-from .trace import TraceResult, sphere_trace  # noqa: E402
+from .shading import shade_lambert  # noqa: E402
+from .trace import TraceResult, backend_available, sphere_trace  # noqa: E402
 
 __all__ = [
     "SDFGrid",
     "Cameras",
+    "NMR_NUM_VIEWS",
     "Scene",
     "DirectionalLight",
     "PointLight",
@@ -40,5 +43,8 @@ __all__ = [
     "sphere_trace",
     "render",
     "shade_trace",
+    "shade_lambert",
+    "backend_available",
     "start_cpu_thread_pool",
+    "torus_and_sphere",
 ]

@@ -30,7 +30,7 @@ SizeLike = Union[int, Sequence[int]]
 NMR_ELEVATION_DEG = 30.0
 NMR_DISTANCE = 2.732
 NMR_FOV_DEG = 30.0
-NMR_NUM_VIEWS = 24
+NMR_NUM_VIEWS = 24  # the NMR ShapeNet dataset's views per object (azimuth steps of 15 degrees)
 
 
 def _image_size(image_size: SizeLike) -> tuple[int, int]:

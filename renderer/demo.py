@@ -12,15 +12,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from . import Cameras, DirectionalLight, Scene, SDFGrid, render
-
-
-def torus_and_sphere(p: torch.Tensor) -> torch.Tensor:
-    """SDF of a torus (radii 0.45, 0.15) in the xz plane united with a sphere above it."""
-    q = torch.stack([torch.linalg.norm(p[..., [0, 2]], dim=-1) - 0.45, p[..., 1]], dim=-1)
-    torus = torch.linalg.norm(q, dim=-1) - 0.15
-    sphere = torch.linalg.norm(p - torch.tensor([0.0, 0.35, 0.0]), dim=-1) - 0.25
-    return torch.minimum(torus, sphere)
+from . import Cameras, DirectionalLight, Scene, SDFGrid, render, torus_and_sphere
 
 
 def save_png(path: Path, image: np.ndarray) -> None:

@@ -38,9 +38,7 @@ def hit_points_exact(grid: SDFGrid, s: torch.Tensor, v: torch.Tensor, b: torch.T
     if k == 0:
         return p_cons, dt_cons
     with torch.no_grad():
-        values = grid.values.detach()
-        g = SDFGrid.__new__(SDFGrid)
-        g.values, g.bbox_min, g.bbox_max = values, grid.bbox_min, grid.bbox_max
+        g = grid.detach()
         f0 = g.sample(s, b)
         h = float(grid.voxel_size.min())
         delta = torch.clamp(f0.abs(), min=h / 20)

@@ -129,6 +129,18 @@ class SDFGrid:
         """A grid with the same box and new values."""
         return SDFGrid(values, self.bbox_min, self.bbox_max)
 
+    def detach(self) -> "SDFGrid":
+        """The same grid cut from autograd: ``values.detach()`` (shares memory, no copy) and the
+        same box, e.g. for sampling it without recording gradients. Not checked again (this grid was)."""
+        return SDFGrid._unchecked(self.values.detach(), self.bbox_min.detach(), self.bbox_max.detach())
+
+    @staticmethod
+    def _unchecked(values: torch.Tensor, bbox_min: torch.Tensor, bbox_max: torch.Tensor) -> "SDFGrid":
+        """A grid from parts of a grid already checked (``__init__`` would check and convert again)."""
+        out = SDFGrid.__new__(SDFGrid)
+        out.values, out.bbox_min, out.bbox_max = values, bbox_min, bbox_max
+        return out
+
     def __repr__(self) -> str:
         return (f"SDFGrid(batch={self.batch_size}, resolution={self.resolution}, dtype={self.dtype}, "
                 f"bbox_min={self.bbox_min.tolist()}, bbox_max={self.bbox_max.tolist()})")
@@ -272,8 +284,7 @@ class SDFGrid:
         """
         if not (torch.is_grad_enabled() and self.values.requires_grad):
             return self
-        out = SDFGrid.__new__(SDFGrid)
-        out.values, out.bbox_min, out.bbox_max = self.values, self.bbox_min, self.bbox_max
+        out = SDFGrid._unchecked(self.values, self.bbox_min, self.bbox_max)
         sink = _GradientSink()
         out._shared = (_SinkRoot.apply(self.values.reshape(-1), sink), sink)
         return out

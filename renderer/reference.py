@@ -78,9 +78,7 @@ def march_reference(
     dev = o.device
     lo, hi = grid.bbox_min, grid.bbox_max
     floor = min_threshold(grid)
-    values = grid.values.detach()
-    g = SDFGrid.__new__(SDFGrid)  # a detached view of the grid: no autograd bookkeeping in the march
-    g.values, g.bbox_min, g.bbox_max = values, lo, hi
+    g = grid.detach()  # no autograd bookkeeping in the march
 
     def sample(p, b):
         return g.sample(p, b)

@@ -69,6 +69,24 @@ def _warn_once(key: str, message: str) -> None:
         warnings.warn(message, RuntimeWarning, stacklevel=3)
 
 
+def backend_available(backend: str) -> tuple[bool, str]:
+    """Whether ``sphere_trace(..., settings.backend=backend)`` can march here.
+
+    Args:
+        backend: one of ``BACKENDS``; "reference" (plain PyTorch) and "auto" (which falls back to
+            it) always can, the fused "cpu" and "cuda" kernels need numba (and for "cuda" a GPU).
+    Returns:
+        (True, "") or (False, the reason in a few words).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend in ("auto", "reference"):
+        return True, ""
+    from . import kernels
+
+    return kernels.available(backend)
+
+
 def resolve_backend(backend: str, device: torch.device) -> str:
     """The backend that will march on ``device``: the fused kernel where available, else the reference."""
     if backend not in BACKENDS:

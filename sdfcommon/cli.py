@@ -334,6 +334,17 @@ def run_task(prog: str, task: Callable[[DictConfig], Any], cfg: DictConfig) -> A
     return result
 
 
+def compose(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
+    """``configs/<config_name>.yaml`` composed with hydra ``overrides`` (hydra's compose API),
+    outside a hydra run: for commands that compose their own config (the demo), benchmarks and data
+    scripts. Entry points get theirs from ``hydra_entry``."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+        return hydra_compose(config_name=config_name, overrides=list(overrides))
+
+
 def hydra_entry(prog: str, config_name: str, task: Callable[[DictConfig], Any],
                 config_dir: Path = CONFIG_DIR, records: Sequence[str] = RUN_RECORDS) -> Callable[[], None]:
     """The ``main()`` of an entry point: hydra composes ``<config_dir>/<config_name>.yaml`` with the
@@ -467,6 +478,6 @@ OmegaConf.register_new_resolver("first_set", _first_set, replace=True)
 OmegaConf.register_new_resolver("config_options", _config_options, replace=True)
 
 
-__all__ = ["hydra_entry", "run_task", "report_user_errors", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
+__all__ = ["hydra_entry", "compose", "run_task", "report_user_errors", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
            "RunFolderGuard", "RunFolderSnapshot", "config_value", "config_int",
            "config_float", "config_choice", "config_ints", "config_bool", "config_object", "CONFIG_DIR"]

@@ -32,8 +32,6 @@ from typing import Optional, Sequence
 
 import torch
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
-
 
 # ------------------------------------------------------------------------------------------------
 # Pictures and meshes
@@ -108,10 +106,9 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
 
 def compose_config(overrides: Sequence[str]):
     """configs/train.yaml with ``experiment=demo`` and the given overrides (hydra compose API)."""
-    from hydra import compose, initialize_config_dir
+    from sdfcommon.cli import compose
 
-    with initialize_config_dir(config_dir=str(REPO_ROOT / "configs"), version_base="1.3"):
-        return compose("train", overrides=["experiment=demo", *overrides])
+    return compose("train", ["experiment=demo", *overrides])
 
 
 def stage_checkpoint(run_dir: Path, stage: str) -> Path:

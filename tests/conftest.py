@@ -11,9 +11,9 @@ def _cuda_ok() -> bool:
     if not torch.cuda.is_available():
         return False
     try:
-        from renderer import kernels
+        import renderer
 
-        return kernels.available("cuda")[0]
+        return renderer.backend_available("cuda")[0]
     except Exception:
         return False
 

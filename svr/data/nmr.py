@@ -25,6 +25,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
+from renderer import NMR_NUM_VIEWS as NUM_VIEWS
 from sdfcommon.checks import check_int
 from sdfcommon.outputs import atomic_path
 
@@ -37,7 +38,6 @@ NMR_CATEGORIES: tuple[tuple[str, str], ...] = (
     ("04530566", "vessel"),
 )
 SPLITS = ("train", "val", "test")
-NUM_VIEWS = 24
 IMAGE_SHAPE = (NUM_VIEWS, 4, 64, 64)
 VOXEL_SHAPE = (32, 32, 32)
 KINDS = ("images", "voxels")

@@ -8,7 +8,7 @@ the bounding box, longest side 1). Per object:
   30, distance 2.732, FOV 30), sphere-traced on the *analytic* SDF, anti-aliased by supersampling
   (S x S rays per pixel, S = 3 by default, NMR's own renderer used 2 x 2; ``render_shape`` gives
   the adaptive rule), shaded with the fixed light of ``DEFAULT_SHADING`` through
-  ``renderer.shading.shade_lambert`` on a white background, so that training can re-render the
+  ``renderer.shade_lambert`` on a white background, so that training can re-render the
   same shading with ``ShadingModel.scene()``.
 * solid voxels, bool (32, 32, 32), in the NMR voxel frame: by default (``voxel_rule="protocol"``)
   the benchmark's own voxelisation of a fine marching-cubes mesh of the analytic SDF (see
@@ -40,6 +40,8 @@ import numba
 import numpy as np
 import torch
 
+from renderer import NMR_NUM_VIEWS as NUM_VIEWS
+
 from ..geometry import NMR_VOXEL_RESOLUTION, nmr_voxel_centres
 from .categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
                          make_shape, procedural_category, style_of)
@@ -49,7 +51,6 @@ from .types import ShadingModel
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
 GENERATOR_VERSION = 2
 
-NUM_VIEWS = 24
 IMAGE_SIZE = 64
 SPLITS = ("train", "val", "test")
 
@@ -125,7 +126,7 @@ def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, super
     Returns:
         (V, 4, H, W) uint8 RGBA: RGB composited on the background, alpha = coverage.
     """
-    from renderer.shading import shade_lambert
+    from renderer import shade_lambert
 
     if not isinstance(supersample, int) or supersample < 1:
         raise ValueError(f"supersample must be a positive int, got {supersample!r}")

@@ -8,8 +8,7 @@ import trimesh
 
 from mvr import SHAPES, Target, load_mesh, make_target, normalise_mesh, shape_mesh
 from mvr.reconstruct import default_scene
-from renderer import Cameras
-from renderer.shading import shade_lambert
+from renderer import Cameras, shade_lambert
 
 
 @pytest.mark.parametrize("name", sorted(SHAPES))

@@ -57,3 +57,16 @@ def test_values_are_kept_without_copy():
     v = torch.zeros(4, 4, 4, requires_grad=True)
     grid = SDFGrid(v)
     assert grid.values.data_ptr() == v.data_ptr()
+
+
+def test_detach_shares_values_and_box_without_autograd():
+    v = torch.rand(2, 4, 5, 6, dtype=torch.float64, requires_grad=True)
+    grid = SDFGrid(v * 1.0, [-1.0, -0.5, -2.0], [1.0, 0.5, 2.0])
+    cut = grid.detach()
+    assert isinstance(cut, SDFGrid) and not cut.values.requires_grad and cut.values.grad_fn is None
+    assert cut.values.data_ptr() == grid.values.data_ptr()
+    assert torch.equal(cut.bbox_min, grid.bbox_min) and torch.equal(cut.bbox_max, grid.bbox_max)
+    p = torch.rand(7, 3, dtype=torch.float64) - 0.5
+    b = torch.tensor([0, 1, 0, 1, 0, 1, 0])
+    assert not cut.sample(p, b).requires_grad
+    torch.testing.assert_close(cut.sample(p, b), grid.sample(p, b).detach())

@@ -401,6 +401,16 @@ def test_cuda_backend_is_refused_without_a_gpu_or_for_cpu_tensors():
             sphere_trace(grid, cams, backend="cuda")
 
 
+def test_the_public_backend_query_agrees_with_the_kernels():
+    import renderer
+
+    assert renderer.backend_available("reference") == renderer.backend_available("auto") == (True, "")
+    for backend in ("cpu", "cuda"):
+        assert renderer.backend_available(backend) == kernels.available(backend)
+    with pytest.raises(ValueError, match="backend must be one of"):
+        renderer.backend_available("gpu")
+
+
 @pytest.mark.cuda
 def test_a_cuda_kernel_that_cannot_be_built_means_unavailable_and_auto_falls_back(monkeypatch):
     """available("cuda") marches one ray on the GPU: a numba-cuda that cannot build the kernel (as

@@ -1,0 +1,183 @@
+"""Imports flow one way (HOUSE_STYLE.md, Boundaries): renderer <- sdfcommon <- svr, mvr <- benchmarks.
+
+Every .py file of the packages is parsed (imports at any depth, inside functions too), the package
+import graph is built and printed (``pytest -s tests/test_layering.py`` shows it), and the test fails
+when a package imports one above it or beside it, when two packages import each other, or when code
+outside ``renderer/`` reaches into a renderer submodule instead of the renderer's public API.
+"""
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator, Optional
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("renderer", "sdfcommon", "svr", "mvr", "benchmarks")
+# Which of our packages each package may import (what is not listed is forbidden).
+ALLOWED = {
+    "renderer": set(),
+    "sdfcommon": {"renderer"},
+    "svr": {"renderer", "sdfcommon"},
+    "mvr": {"renderer", "sdfcommon"},
+    "benchmarks": {"renderer", "sdfcommon", "svr", "mvr"},
+}
+# The renderer is a library of torch, numpy and numba: never the applications' frameworks.
+RENDERER_NEVER = ("hydra", "omegaconf", "pytorch_lightning", "lightning")
+
+
+@dataclass(frozen=True)
+class Import:
+    """One reference of a file to a module of ours: ``module`` is the absolute dotted name imported
+    (``from a.b import c`` gives ``a.b`` with ``names=("c",)``; ``import a.b`` gives ``a.b``)."""
+
+    file: str
+    line: int
+    module: str
+    names: tuple[str, ...] = ()
+    attribute: bool = False  # ``renderer.<name>`` in code, not an import statement
+
+
+def _module_name(path: Path, root: Path) -> str:
+    parts = list(path.relative_to(root).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def _resolve(node: ast.ImportFrom, module: str, is_package: bool) -> Optional[str]:
+    """The absolute module of a (possibly relative) ``from ... import``."""
+    if node.level == 0:
+        return node.module
+    base = module.split(".") if is_package else module.split(".")[:-1]
+    if node.level > 1:
+        base = base[:len(base) - (node.level - 1)]
+    return ".".join([*base, *([node.module] if node.module else [])]) or None
+
+
+def imports_of(path: Path, root: Path = REPO) -> Iterator[Import]:
+    """Every import of one of ``PACKAGES`` in the file at ``path``, also those inside functions,
+    and every ``renderer.<name>`` in the code (as ``Import(module="renderer", names=(name,),
+    attribute=True)``: after ``import renderer``, ``renderer.kernels.available(...)`` reaches into a
+    submodule as an import would)."""
+    source = path.read_text(encoding="utf-8")
+    tree = ast.parse(source, filename=str(path))
+    module = _module_name(path, root)
+    rel = path.relative_to(root).as_posix()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.split(".")[0] in PACKAGES:
+                    yield Import(rel, node.lineno, alias.name)
+        elif isinstance(node, ast.ImportFrom):
+            target = _resolve(node, module, path.name == "__init__.py")
+            if target and target.split(".")[0] in PACKAGES:
+                yield Import(rel, node.lineno, target, tuple(a.name for a in node.names))
+        elif isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id == "renderer":
+            yield Import(rel, node.lineno, "renderer", (node.attr,), attribute=True)
+
+
+def _files(root: Path) -> Iterator[Path]:
+    for package in PACKAGES:
+        yield from sorted((root / package).rglob("*.py"))
+
+
+def renderer_public_names(root: Path = REPO) -> set[str]:
+    """``renderer.__all__``, read from the source (no import)."""
+    tree = ast.parse((root / "renderer" / "__init__.py").read_text(encoding="utf-8"))
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
+            return set(ast.literal_eval(node.value))
+    raise AssertionError("renderer/__init__.py has no literal __all__")
+
+
+def import_graph(root: Path = REPO) -> dict[str, dict[str, list[Import]]]:
+    """{package: {imported package: [imports]}} over the files of ``PACKAGES`` under ``root``
+    (a package's imports of itself left out)."""
+    graph: dict[str, dict[str, list[Import]]] = {p: {} for p in PACKAGES}
+    for path in _files(root):
+        package = path.relative_to(root).parts[0]
+        for imp in imports_of(path, root):
+            target = imp.module.split(".")[0]
+            if target != package and not imp.attribute:
+                graph[package].setdefault(target, []).append(imp)
+    return graph
+
+
+def violations(root: Path = REPO) -> list[str]:
+    """What breaks the one-way rule, one line each (empty when the layering holds)."""
+    graph = import_graph(root)
+    public = renderer_public_names(root)
+    out = []
+    for package, targets in graph.items():
+        for target, imps in sorted(targets.items()):
+            if target not in ALLOWED[package]:
+                out += [f"{i.file}:{i.line}: {package} imports {i.module} ({package} may import "
+                        f"{sorted(ALLOWED[package]) or 'nothing of ours'})" for i in imps]
+    for package in PACKAGES:
+        for target in graph[package]:
+            if package < target and package in graph.get(target, {}):
+                out.append(f"{package} and {target} import each other")
+    for path in sorted((root / "renderer").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module else [])
+            out += [f"{path.relative_to(root).as_posix()}:{node.lineno}: renderer imports {name}"
+                    for name in names if name.split(".")[0] in RENDERER_NEVER]
+    for path in _files(root):
+        if path.relative_to(root).parts[0] == "renderer":
+            continue
+        for imp in imports_of(path, root):
+            if imp.module.split(".")[0] != "renderer":
+                continue
+            private = imp.module != "renderer" or not set(imp.names) <= public
+            if private:
+                what = imp.module + (f" ({', '.join(imp.names)})" if imp.names else "")
+                out.append(f"{imp.file}:{imp.line}: reaches into the renderer: {what}; use renderer's "
+                           f"public API (renderer.__all__)")
+    return out
+
+
+def format_graph(graph: dict[str, dict[str, list[Import]]]) -> str:
+    lines = ["package import graph (package -> what it imports, with the number of imports):"]
+    for package in PACKAGES:
+        targets = ", ".join(f"{t} ({len(graph[package][t])})" for t in PACKAGES if t in graph[package])
+        lines.append(f"  {package:<10} -> {targets or '(nothing of ours)'}")
+    return "\n".join(lines)
+
+
+def test_imports_flow_one_way():
+    print("\n" + format_graph(import_graph()))
+    found = violations()
+    assert not found, "imports against the layering:\n" + "\n".join(found)
+
+
+def test_the_check_catches_each_kind_of_violation(tmp_path):
+    """A tree with one violation of each kind is refused, each named, so the test above can fail."""
+    files = {
+        "renderer/__init__.py": '__all__ = ["render", "SDFGrid"]\n',
+        "renderer/grid.py": "def f():\n    import svr\n",  # the renderer imports an application
+        "renderer/scene.py": "from omegaconf import DictConfig\n",
+        "sdfcommon/__init__.py": "",
+        "sdfcommon/x.py": "from mvr import y\n",  # the shared layer imports an application
+        "svr/__init__.py": "",
+        "svr/a.py": ("import renderer\nfrom renderer import render\nfrom renderer.shading import shade\n"
+                     "def g():\n    from mvr.b import c\n    return renderer.kernels.available('cpu')\n"),
+        "mvr/__init__.py": "",
+        "mvr/b.py": "from svr import a\nfrom renderer import SDFGrid, secret\n",
+        "benchmarks/__init__.py": "",
+        "benchmarks/z.py": "from svr import a\nfrom mvr import b\n",  # allowed
+    }
+    for rel, text in files.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    found = "\n".join(violations(tmp_path))
+    assert "renderer/grid.py:2: renderer imports svr" in found
+    assert "renderer/scene.py:1: renderer imports omegaconf" in found
+    assert "sdfcommon/x.py:1: sdfcommon imports mvr" in found
+    assert "svr/a.py:5: svr imports mvr.b" in found and "mvr/b.py:1: mvr imports svr" in found
+    assert "mvr and svr import each other" in found
+    assert "svr/a.py:3: reaches into the renderer: renderer.shading (shade)" in found
+    assert "svr/a.py:6: reaches into the renderer: renderer (kernels)" in found
+    assert "mvr/b.py:2: reaches into the renderer: renderer (SDFGrid, secret)" in found
+    assert "benchmarks" not in found and "svr/a.py:1:" not in found and "svr/a.py:2:" not in found
