@@ -9,7 +9,7 @@ rig, fit an SDF grid coarse to fine, starting from a sphere, and measure the err
 
 Command line: ``python -m mvr target=torus out_dir=outputs/mvr/torus`` (configs/mvr.yaml).
 """
-from .losses import image_loss, silhouette_loss
+from .losses import view_image_losses, view_silhouette_losses
 from .metrics import SurfaceDistances, surface_distances
 from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
 from .raycast import RayHits, TriangleGrid
@@ -27,6 +27,6 @@ __all__ = [
     "Target", "TargetImages", "make_target", "load_mesh", "normalise_mesh", "shape_mesh", "MESH_FORMATS",
     "SHAPES", "Shape", "TriangleGrid", "RayHits",
     "ViewLosses", "LevelReport", "optimise_level", "fill_cavities", "rule_image_size",
-    "image_loss", "silhouette_loss",
+    "view_image_losses", "view_silhouette_losses",
     "surface_distances", "SurfaceDistances",
 ]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 
 
-def image_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def view_image_losses(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """The paper's L2 image loss of each view, as a mean over its pixels and channels.
 
     Args:
@@ -24,7 +24,7 @@ def image_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return ((rendered - target.to(rendered.dtype)) ** 2).mean(dim=(1, 2, 3))
 
 
-def silhouette_loss(silhouette: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def view_silhouette_losses(silhouette: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """Mean squared difference, per view, between soft silhouettes (V, H, W) in [0, 1] and target
     coverage (V, H, W) (a float mask, possibly noisy). Returns (V,). Not in the paper: it gives the
     grid gradients where rays miss the surface."""

@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Optional, Sequence, Union
+from typing import Sequence, Union
 
 import torch
 
@@ -19,7 +19,7 @@ from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 
 from sdfcommon.regularisers import band_regularisers
 
-from .losses import image_loss, silhouette_loss
+from .losses import view_image_losses, view_silhouette_losses
 
 PerLevel = Union[int, float, None, Sequence[Union[int, float, None]]]
 
@@ -186,9 +186,9 @@ class ViewLosses:
         """Weighted image + silhouette loss of each of ``views`` (K,) long: (K,) total, image, silhouette."""
         out = render(grid, self.cameras[views], self.scene, self.trace, self.backend)
         s = self.settings
-        img = image_loss(out.image, self.images[views])
+        img = view_image_losses(out.image, self.images[views])
         if s.silhouette_weight > 0:
-            sil = silhouette_loss(out.silhouette, self.masks[views])
+            sil = view_silhouette_losses(out.silhouette, self.masks[views])
         else:
             sil = torch.zeros_like(img)
         return s.image_weight * img + s.silhouette_weight * sil, img, sil

@@ -414,7 +414,7 @@ def surface_normals(shape: CSGShape, points: np.ndarray, eps: float = 1e-5) -> n
 
 
 @dataclass(frozen=True)
-class RayHits:
+class CSGHits:
     """Sphere-tracing result for R rays (world frame).
 
     Attributes:
@@ -434,7 +434,7 @@ class RayHits:
 
 def trace_rays(shape: CSGShape, eyes: np.ndarray, directions: np.ndarray, hit_threshold: float,
                box: Optional[tuple[np.ndarray, np.ndarray]] = None, eye_index: Optional[np.ndarray] = None,
-               t_min: Optional[np.ndarray] = None, cone_delta: float = 0.0, max_steps: int = 256) -> RayHits:
+               t_min: Optional[np.ndarray] = None, cone_delta: float = 0.0, max_steps: int = 256) -> CSGHits:
     """Sphere-traces the analytic SDF along R rays, without gradients.
 
     Each ray marches from where it enters ``box`` (but not before ``t_min``) to where it leaves it.
@@ -447,7 +447,7 @@ def trace_rays(shape: CSGShape, eyes: np.ndarray, directions: np.ndarray, hit_th
         eye_index: (R,) int (default: ray n uses eye n, E = R).
         t_min: (R,) where the march may start at the earliest (default 0).
         cone_delta: neighbouring rays within ``cone_delta * t`` of this one are certified free of the
-            shape as long as every sample has ``sdf > 2 cone_delta t`` (see ``RayHits``); the box must
+            shape as long as every sample has ``sdf > 2 cone_delta t`` (see ``CSGHits``); the box must
             then contain the shape with a margin of ``2 cone_delta t``.
         max_steps: samples per ray; a ray that runs out of them is a miss that is not ``clear``.
     """
@@ -469,7 +469,7 @@ def trace_rays(shape: CSGShape, eyes: np.ndarray, directions: np.ndarray, hit_th
                 np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64), float(hit_threshold),
                 float(2.0 * cone_delta) if cone_delta > 0 else np.inf, float(cone_delta), int(max_steps),
                 out_t, out_hit, out_cert, out_clear)
-    return RayHits(out_t, out_hit, out_cert, out_clear)
+    return CSGHits(out_t, out_hit, out_cert, out_clear)
 
 
 # ---------------------------------------------------------------------------------------------

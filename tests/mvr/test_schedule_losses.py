@@ -6,7 +6,8 @@ import math
 import pytest
 import torch
 
-from mvr import OptimSettings, Schedule, fill_cavities, image_loss, rule_image_size, silhouette_loss
+from mvr import (OptimSettings, Schedule, fill_cavities, rule_image_size, view_image_losses,
+                 view_silhouette_losses)
 from renderer import Cameras, SDFGrid
 
 
@@ -49,12 +50,12 @@ def test_losses():
     a = torch.zeros(2, 4, 4, 1)
     b = torch.ones(2, 4, 4, 1)
     b[1] = 0.5
-    assert torch.allclose(image_loss(a, b), torch.tensor([1.0, 0.25]))
-    assert torch.allclose(silhouette_loss(a[..., 0], b[..., 0]), torch.tensor([1.0, 0.25]))
+    assert torch.allclose(view_image_losses(a, b), torch.tensor([1.0, 0.25]))
+    assert torch.allclose(view_silhouette_losses(a[..., 0], b[..., 0]), torch.tensor([1.0, 0.25]))
     with pytest.raises(ValueError, match="rendered"):
-        image_loss(a, b[:1])
+        view_image_losses(a, b[:1])
     with pytest.raises(ValueError, match="silhouette"):
-        silhouette_loss(a, b)
+        view_silhouette_losses(a, b)
 
 
 def test_fill_cavities():
