@@ -33,7 +33,7 @@ test-slow: install
 # The main job: single-view training (experiment=demo) on the built-in procedural data, then the
 # benchmark IoU table, pictures and meshes in outputs/demo/. Run again to resume a stopped run.
 demo: install
-	$(PY) -m svr.demo --out outputs/demo
+	$(PY) -m svr.demo out=outputs/demo
 
 bench: install
 	$(PY) -m benchmarks.renderer_speed

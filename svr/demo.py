@@ -1,12 +1,14 @@
 """The CPU demo: train ``experiment=demo`` from scratch on the procedural data, then evaluate it.
 
-    python -m svr.demo [--out outputs/demo] [--eval-only | --fresh] [hydra overrides ...]
+    python -m svr.demo [out=outputs/demo] [eval_only=true | fresh=true] [quiet=true] [train overrides ...]
 
-A run that was stopped (Ctrl+C, SIGTERM: it saves a checkpoint and exits with status 143) resumes
-from its last checkpoint, with its saved config, when the command is run again; a finished run is
-only evaluated again. ``--out`` is taken from the working directory.
+configs/demo.yaml: configs/train.yaml with ``experiment=demo`` and the demo's own settings; ``run``
+does the work, ``main`` is the hydra wrapper with the entry points' shared error handling (a
+mistake is one line, exit status 2). A run that was stopped (SIGTERM: it saves a checkpoint and
+exits with status 143) resumes from its last checkpoint, with its saved config, when the command is
+run again; a finished run is only evaluated again. ``out`` is taken from the working directory.
 
-Writes into ``--out`` (default ``outputs/demo``):
+Writes into ``out`` (default ``outputs/demo``; hydra's ``.hydra/`` and ``demo.log`` too):
 
 * ``train/``: the training run (config.yaml, per-stage checkpoints and logs; svr/training.py);
 * the evaluation script's files (``svr.evaluate``: the benchmark IoU protocol, every view of every
@@ -23,14 +25,16 @@ Writes into ``--out`` (default ``outputs/demo``):
 """
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import torch
+from omegaconf import DictConfig, OmegaConf
+
+from sdfcommon.cli import hydra_entry
 
 
 # ------------------------------------------------------------------------------------------------
@@ -102,13 +106,6 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
 
 # ------------------------------------------------------------------------------------------------
 # The driver
-
-
-def compose_config(overrides: Sequence[str]):
-    """configs/train.yaml with ``experiment=demo`` and the given overrides (hydra compose API)."""
-    from sdfcommon.cli import compose
-
-    return compose("train", ["experiment=demo", *overrides])
 
 
 def stage_checkpoint(run_dir: Path, stage: str) -> Path:
@@ -211,15 +208,34 @@ def run_train_seconds(run_dir: Path, schedule: Sequence[str]) -> Optional[float]
     return total
 
 
-def demo_config(run_dir: Path, overrides: Sequence[str], fresh: bool):
-    """The demo's config: ``experiment=demo`` with the overrides; for a run already in ``run_dir``
-    (unless ``fresh``), that run's ``config.yaml`` with the changes a resume may make
-    (``svr.training.resume_config``: other changed settings are refused, naming them)."""
-    from omegaconf import OmegaConf
+DEMO_KEYS = ("out", "eval_only", "fresh", "protocol_workers", "quiet")  # configs/demo.yaml's own settings
+QUIET = {"data.progress": False, "trainer.enable_progress_bar": False, "callbacks.progress_bar": None}
 
-    from .training import resume_config
 
-    cfg = compose_config(overrides)
+def split_config(cfg: DictConfig) -> tuple[dict[str, Any], DictConfig]:
+    """configs/demo.yaml composed -> (the demo's own settings, checked; the training config)."""
+    from sdfcommon.cli import config_bool, config_int, config_value
+
+    opts = {"out": config_value(cfg, "out"), "eval_only": config_bool(cfg, "eval_only"),
+            "fresh": config_bool(cfg, "fresh"), "protocol_workers": config_int(cfg, "protocol_workers", minimum=0),
+            "quiet": config_bool(cfg, "quiet")}
+    if opts["out"] in (None, ""):
+        raise ValueError("out must name the demo's folder")
+    if opts["eval_only"] and opts["fresh"]:
+        raise ValueError("eval_only=true and fresh=true contradict each other: choose one")
+    train_cfg = OmegaConf.masked_copy(cfg, [k for k in cfg.keys() if k not in DEMO_KEYS])
+    if opts["quiet"]:
+        for key, value in QUIET.items():
+            OmegaConf.update(train_cfg, key, value, merge=False)
+    return opts, train_cfg
+
+
+def demo_config(run_dir: Path, cfg: DictConfig, overrides: Sequence[str], fresh: bool) -> DictConfig:
+    """The training config: ``cfg`` (experiment=demo with the overrides); for a run already in
+    ``run_dir`` (unless ``fresh``), that run's ``config.yaml`` with the changes a resume may make
+    (``svr.resume.resume_config``: other changed settings are refused, naming them)."""
+    from .resume import resume_config
+
     saved = Path(run_dir) / "config.yaml"
     if fresh or not saved.is_file():
         return cfg
@@ -229,47 +245,41 @@ def demo_config(run_dir: Path, overrides: Sequence[str], fresh: bool):
     return merged
 
 
-def main(argv: Optional[Sequence[str]] = None) -> dict:
-    """``python -m svr.demo`` (see the module docstring). A user's mistake (a bad override, a run
-    folder that cannot be written, ...) is one line with exit status 2 (``sdfcommon.cli``); a
-    SIGTERM exits 143 after saving a checkpoint."""
-    from sdfcommon.cli import report_user_errors
+def run(cfg: DictConfig, overrides: Optional[Sequence[str]] = None) -> dict:
+    """The demo (see the module docstring) from a composed configs/demo.yaml.
 
-    return report_user_errors("svr.demo", lambda: _main(argv))
+    Args:
+        cfg: configs/demo.yaml with the command line's overrides.
+        overrides: those overrides (default: hydra's, inside a hydra run); a resumed run may change
+            only what ``svr.resume.RESUMABLE_KEYS`` allows of the ones that name training settings.
+    Returns:
+        {"table", "iou", "files"} and the timings.
+    """
+    if overrides is None:
+        from hydra.core.hydra_config import HydraConfig
 
-
-def _main(argv: Optional[Sequence[str]]) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", default="outputs/demo", help="output folder (default outputs/demo)")
-    parser.add_argument("--eval-only", action="store_true", help="evaluate the run already in OUT/train")
-    parser.add_argument("--fresh", action="store_true",
-                        help="train from scratch even if OUT/train holds an unfinished or finished run")
-    parser.add_argument("--protocol-workers", type=int, default=2,
-                        help="processes for the evaluation's mesh voxelisation (default 2)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.add_argument("overrides", nargs="*", help="hydra overrides of configs/train.yaml (after experiment=demo)")
-    args = parser.parse_args(argv)
-    if args.protocol_workers < 0:
-        parser.error(f"--protocol-workers must be >= 0, got {args.protocol_workers}")
-    out_dir = Path(args.out).expanduser().resolve()  # from the working directory, as every command
+        overrides = list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
+    opts, train_cfg = split_config(cfg)
+    requested = [o for o in overrides if o.lstrip("+~").split("=", 1)[0] not in DEMO_KEYS]
+    if opts["quiet"]:
+        requested += [f"{k}={'null' if v is None else str(v).lower()}" for k, v in QUIET.items()]
+    out_dir = Path(opts["out"]).expanduser().resolve()  # from the working directory, as every command
     run_dir = out_dir / "train"
-    quiet = ["data.progress=false", "trainer.enable_progress_bar=false", "callbacks.progress_bar=null"]
-    cfg = demo_config(run_dir, list(args.overrides) + (quiet if args.quiet else []), args.fresh)
+    cfg = demo_config(run_dir, train_cfg, requested, opts["fresh"])
     schedule = list(cfg.stage.schedule)
     start = time.time()
     train_wall = None
-    finished, resume = (False, None) if args.fresh else resume_point(run_dir, schedule)
-    if args.eval_only:
+    finished, resume = (False, None) if opts["fresh"] else resume_point(run_dir, schedule)
+    if opts["eval_only"]:
         if not finished:
-            raise SystemExit(f"svr.demo: error: --eval-only needs a finished run in {run_dir} "
+            raise ValueError(f"eval_only=true needs a finished run in {run_dir} "
                              f"(no {schedule[-1]}/checkpoints/final.ckpt)")
     elif finished:
-        print(f"{run_dir} holds a finished run: evaluating it (--fresh trains again)")
+        print(f"{run_dir} holds a finished run: evaluating it (fresh=true trains again)")
     else:
         from .training import TrainingStopped, train
 
-        if args.fresh and run_dir.exists():
+        if opts["fresh"] and run_dir.exists():
             import shutil
 
             shutil.rmtree(run_dir)
@@ -284,7 +294,7 @@ def _main(argv: Optional[Sequence[str]]) -> dict:
             raise
         train_wall = time.time() - start
     t_eval = time.time()
-    result = evaluate_run(cfg, run_dir, out_dir, progress=not args.quiet, protocol_workers=args.protocol_workers)
+    result = evaluate_run(cfg, run_dir, out_dir, progress=not opts["quiet"], protocol_workers=opts["protocol_workers"])
     steps = stage_steps(cfg, run_dir)
     train_seconds = run_train_seconds(run_dir, schedule)
     timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,
@@ -310,6 +320,9 @@ def _main(argv: Optional[Sequence[str]]) -> dict:
     for f in result["files"]:
         print(f"  {f}")
     return {**result, **timings}
+
+
+main = hydra_entry("svr.demo", "demo", run)
 
 
 if __name__ == "__main__":

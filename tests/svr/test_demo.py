@@ -7,9 +7,17 @@ from pathlib import Path
 
 import pytest
 
-from svr.demo import main, resume_point, run_train_seconds
+from sdfcommon.cli import compose
+from svr.demo import main, resume_point, run, run_train_seconds
+
+from ..entry_points import expect_usage_error, run_entry
 
 SCHEDULE = ("coarse", "refine", "joint")
+
+
+def demo(args: list[str]) -> dict:
+    """The demo with these command-line overrides, in this process (``run`` on configs/demo.yaml)."""
+    return run(compose("demo", args), args)
 
 
 def tiny(cache: Path) -> list[str]:
@@ -22,8 +30,8 @@ def tiny(cache: Path) -> list[str]:
 
 def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     out = tmp_path / "demo"
-    args = ["--out", str(out), "--quiet", "--protocol-workers", "0", *tiny(tmp_path / "cache")]
-    main(args)
+    args = [f"out={out}", "quiet=true", "protocol_workers=0", *tiny(tmp_path / "cache")]
+    demo(args)
     printed = capsys.readouterr().out
     for row in ("ours (joint stage, refined)", "coarse stage alone", "mean shape", "category mean shape",
                 "retrieval", "oracle (exact shape)", "ours - retrieval"):
@@ -46,7 +54,7 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     # A finished run is evaluated again, not retrained.
     final = out / "train" / "joint" / "checkpoints" / "final.ckpt"
     stamp = final.stat().st_mtime_ns
-    main(args)
+    demo(args)
     assert "holds a finished run" in capsys.readouterr().out
     assert final.stat().st_mtime_ns == stamp
 
@@ -57,7 +65,7 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     refine_final = out / "train" / "refine" / "checkpoints" / "final.ckpt"
     assert resume_point(out / "train", ["coarse", "refine", "joint"]) == (False, refine_final)
     coarse_stamp = (out / "train" / "coarse" / "checkpoints" / "final.ckpt").stat().st_mtime_ns
-    main(args)
+    demo(args)
     assert "resuming the unfinished run" in capsys.readouterr().out
     assert (out / "train" / "refine" / "csv" / "metrics.csv").is_file()  # the run's log, kept in place
     assert final.is_file()
@@ -66,23 +74,23 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
 
 def test_demo_stopped_by_sigterm_resumes_and_counts_the_whole_run(tmp_path, capsys, monkeypatch):
     """A SIGTERM during the demo's training exits with status 143; running the command again (from
-    another working directory, with a relative --out) resumes that run, and timings.json counts the
+    another working directory, with a relative out) resumes that run, and timings.json counts the
     training time of both parts; the steps planned and reached are in iou.json too."""
     monkeypatch.chdir(tmp_path)
     stop = ["+callbacks.terminator._target_=tests.svr.test_resume.TermAtStep", "+callbacks.terminator.stage=refine",
             "+callbacks.terminator.step=1"]
-    args = ["--out", "rel/demo", "--quiet", "--protocol-workers", "0", *tiny(tmp_path / "cache")]
+    args = ["out=rel/demo", "quiet=true", "protocol_workers=0", *tiny(tmp_path / "cache")]
     with pytest.raises(SystemExit) as stopped:
-        main([*args, *stop])
+        demo([*args, *stop])
     assert stopped.value.code == 143
     assert "run the same command again" in capsys.readouterr().err
-    run = tmp_path / "rel" / "demo" / "train"  # --out from the working directory
-    first_part = run_train_seconds(run, ["coarse"])
-    assert first_part > 0 and (run / "refine" / "checkpoints" / "last.ckpt").is_file()
-    result = main([*args, *stop])  # the same command: resumes after refine's step 1
+    run_dir = tmp_path / "rel" / "demo" / "train"  # out from the working directory
+    first_part = run_train_seconds(run_dir, ["coarse"])
+    assert first_part > 0 and (run_dir / "refine" / "checkpoints" / "last.ckpt").is_file()
+    result = demo([*args, *stop])  # the same command: resumes after refine's step 1
     assert "resuming the unfinished run" in capsys.readouterr().out
     timings = json.loads((tmp_path / "rel" / "demo" / "timings.json").read_text())
-    assert timings["resumed"] and timings["train_seconds"] == pytest.approx(run_train_seconds(run, SCHEDULE))
+    assert timings["resumed"] and timings["train_seconds"] == pytest.approx(run_train_seconds(run_dir, SCHEDULE))
     assert timings["train_seconds"] > first_part
     steps = {s: {"planned": 2, "reached": 2} for s in SCHEDULE}
     assert timings["steps"] == steps and result["iou"]["steps"] == steps
@@ -94,17 +102,23 @@ def test_resume_point_and_eval_only_errors(tmp_path):
     (tmp_path / "coarse" / "checkpoints").mkdir(parents=True)
     (tmp_path / "coarse" / "checkpoints" / "last.ckpt").write_bytes(b"x")
     assert resume_point(tmp_path, ["coarse", "refine"]) == (False, tmp_path / "coarse" / "checkpoints" / "last.ckpt")
-    with pytest.raises(SystemExit, match="--eval-only needs a finished run"):
-        main(["--out", str(tmp_path / "nothing"), "--eval-only", "--quiet"])
+    with pytest.raises(ValueError, match="eval_only=true needs a finished run"):
+        demo([f"out={tmp_path / 'nothing'}", "eval_only=true", "quiet=true"])
 
 
 @pytest.mark.parametrize("override, message", [("model=nosuch", "Could not find 'model/nosuch'"),
-                                               ("stage.coarse.max_steps=0", "stage.coarse.max_steps must be")])
-def test_demo_mistakes_are_one_line(tmp_path, capsys, override, message):
-    """svr.demo shares the entry points' error handling: one line, exit status 2, nothing written."""
-    with pytest.raises(SystemExit) as err:
-        main(["--out", str(tmp_path / "demo"), "--quiet", f"data.cache_dir={tmp_path / 'cache'}", override])
-    assert err.value.code == 2
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("svr.demo: error:") and message in lines[0]
+                                               ("stage.coarse.max_steps=0", "stage.coarse.max_steps must be"),
+                                               ("protocol_workers=-1", "protocol_workers must be")])
+def test_demo_mistakes_are_one_line(tmp_path, capsys, monkeypatch, override, message):
+    """svr.demo is a hydra entry like the others: a mistake is one line, exit status 2, and leaves no
+    folder behind."""
+    if override.startswith("model="):  # hydra itself refuses it, before the demo runs: its own short message
+        with pytest.raises(SystemExit):
+            run_entry(main, [f"out={tmp_path / 'demo'}", override], monkeypatch)
+        assert message in capsys.readouterr().err
+    else:
+        line = expect_usage_error(main, [f"out={tmp_path / 'demo'}", "quiet=true",
+                                         f"data.cache_dir={tmp_path / 'cache'}", override], monkeypatch, capsys,
+                                  prog="svr.demo")
+        assert message in line
     assert not (tmp_path / "demo").exists()
