@@ -44,7 +44,7 @@ def baseline_table(preset: str = "bench", split: str = "test", cache_dir: Option
 
     from sdfcommon.cli import compose
     from svr.baselines import BASELINES, LABELS, score_baselines
-    from svr.evaluate import EvaluationResult
+    from svr.report import EvaluationResult
     from svr.metrics import iou_table
 
     extra = [f"data.cache_dir={cache_dir}"] if cache_dir is not None else []
