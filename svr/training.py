@@ -107,19 +107,34 @@ class TrainingStopped(SystemExit):
 
 
 class SaveOnStop(pl.Callback):
-    """Saves a resumable checkpoint (``path``, the stage's ``last.ckpt``) when a SIGTERM arrives.
+    """Saves a resumable checkpoint (``path``, the stage's ``last.ckpt``) when a SIGTERM arrives,
+    and then lets Lightning stop.
 
-    Lightning notes the signal and stops at the end of the step; the checkpoint is written at
-    the step's ``on_train_batch_end``, where Lightning's periodic checkpoints are written too (the
-    state its resume logic knows best, also at the end of an epoch; one written from Lightning's
-    exception at the end of an epoch resumes one epoch too far). A signal outside a training step
-    (validation, the sanity check) is saved from the exception. The training data loader records
-    its place in the epoch (``ResumableLoader``).
+    The signal is only noted when it arrives; the checkpoint is written at the end of the training
+    step that is running (or the next one, when the signal came during validation or before the
+    first step), at ``on_train_batch_end``, where Lightning's periodic checkpoints are written too:
+    the state its resume logic restores exactly. Only then is Lightning told (its own SIGTERM
+    handler), so it stops after that step. Had Lightning heard the signal itself, it would stop in
+    the middle of a validation (before the step's learning-rate update: a resumed run would then
+    be one scheduler step behind) or after an epoch's last step (a checkpoint that resumes one
+    epoch too far). A signal after the stage's last step is kept in ``pending`` for ``train``.
+    The training data loader records its place in the epoch (``ResumableLoader``).
     """
 
     def __init__(self, path: Path):
         self.path = Path(path)
         self.saved_step: Optional[int] = None
+        self.pending = False
+        self._lightning_handler: Any = None
+
+    def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
+        # Lightning installed its handler when fit began; hear the signal first (main thread only).
+        if threading.current_thread() is threading.main_thread():
+            self._lightning_handler = signal.getsignal(signal.SIGTERM)
+            signal.signal(signal.SIGTERM, self._note)
+
+    def _note(self, signum: int, frame: Any) -> None:
+        self.pending = True
 
     def _save(self, trainer: pl.Trainer) -> None:
         if self.saved_step is None:
@@ -127,11 +142,13 @@ class SaveOnStop(pl.Callback):
             self.saved_step = int(trainer.global_step)
 
     def on_train_batch_end(self, trainer: pl.Trainer, *args: Any) -> None:
-        if trainer.received_sigterm:
+        if self.pending or trainer.received_sigterm:
             self._save(trainer)
+            if callable(self._lightning_handler) and not trainer.received_sigterm:
+                self._lightning_handler(signal.SIGTERM, None)  # Lightning stops after this step
 
     def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
-        if isinstance(exception, SIGTERMException):
+        if isinstance(exception, SIGTERMException):  # Lightning heard it first (e.g. broadcast by DDP)
             self._save(trainer)
 
 
@@ -467,6 +484,9 @@ def _run_schedule(cfg: DictConfig, run_dir: Path, schedule: list[str], start: in
             _IN_FIT = False
         final = stage_dir / "checkpoints" / "final.ckpt"
         trainer.save_checkpoint(final, weights_only=False)  # a full, resumable checkpoint
+        saver = next(cb for cb in trainer.callbacks if isinstance(cb, SaveOnStop))
+        if saver.pending:  # the signal came with or after the stage's last step: stop before the next stage
+            raise _stopped(trainer, stage, run_dir, final)
         best, last, score = _checkpoint_callbacks(trainer)
         results.append(StageResult(stage, stage_dir, best, last, final, score))
         log.info("stage %s done: best val IoU %s (%s), final %s", stage, score, best, final)
@@ -477,15 +497,17 @@ def _run_schedule(cfg: DictConfig, run_dir: Path, schedule: list[str], start: in
     return TrainResult(run_dir, tuple(results))
 
 
-def _stopped(trainer: pl.Trainer, stage: str, run_dir: Path) -> TrainingStopped:
+def _stopped(trainer: pl.Trainer, stage: str, run_dir: Path, checkpoint: Optional[Path] = None) -> TrainingStopped:
     saver = next((cb for cb in trainer.callbacks if isinstance(cb, SaveOnStop)), None)
-    if saver is None or saver.saved_step is None:
+    if checkpoint is None and saver is not None and saver.saved_step is not None:
+        checkpoint = saver.path
+    if checkpoint is None:
         return TrainingStopped(f"training stopped by SIGTERM in stage {stage}; no checkpoint was saved at the signal")
-    message = (f"training stopped by SIGTERM in stage {stage} at step {saver.saved_step}; saved {saver.path}. "
-               f"Resume with: python train.py ckpt_path={run_dir}")
+    message = (f"training stopped by SIGTERM in stage {stage} at step {int(trainer.global_step)}; saved "
+               f"{checkpoint}. Resume with: python train.py ckpt_path={run_dir}")
     if launch_rank_is_zero():
         print(message, file=sys.stderr, flush=True)
-    return TrainingStopped(message, checkpoint=saver.path)
+    return TrainingStopped(message, checkpoint=checkpoint)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -46,6 +46,17 @@ class TermAtStep(pl.Callback):
             os.kill(os.getpid(), signal.SIGTERM)
 
 
+class TermInValidation(pl.Callback):
+    """Sends this process a SIGTERM in the middle of the validation after step ``step``."""
+
+    def __init__(self, step: int):
+        self.step = step
+
+    def on_validation_batch_start(self, trainer, *args) -> None:
+        if trainer.global_step == self.step and not trainer.sanity_checking:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+
 def weights(path: Path) -> dict[str, torch.Tensor]:
     return state(path, "net.")
 
@@ -87,6 +98,26 @@ def test_sigterm_saves_and_resume_equals_uninterrupted_run(tmp_path, data_overri
     steps = [int(float(r["step"])) for r in csv.DictReader(open(run / "coarse" / "csv" / "metrics.csv"))]
     assert steps == sorted(steps)  # one metrics file, each step once in order
     assert not list((run / "coarse" / "csv").glob("metrics.*.csv"))
+
+
+def test_sigterm_during_validation_resumes_exactly(tmp_path, data_overrides):
+    """A SIGTERM in the middle of a validation: the stage stops after the next training step (the
+    checkpoint is written where Lightning writes its own), and the resumed run still ends with the
+    uninterrupted run's weights (stopping inside the validation skipped the step's learning-rate
+    update: resumed runs were one scheduler step behind)."""
+    base = tiny_overrides(data_overrides, 7, "stage=coarse", "trainer.val_check_interval=2",
+                          "data.val_views=[0,6,12]", "data.eval_batch_size=1")
+    whole = train(compose_train(base), tmp_path / "whole")
+    run = tmp_path / "stopped"
+    cfg = compose_train(base)
+    OmegaConf.set_struct(cfg, False)
+    cfg.callbacks.terminator = {"_target_": f"{__name__}.TermInValidation", "step": 4}
+    with pytest.raises(TrainingStopped) as stopped:
+        train(cfg, run)
+    assert load_checkpoint(stopped.value.checkpoint)["global_step"] == 5  # the step after the validation
+    train(compose_train([*base, f"ckpt_path={run}"]), run)
+    assert_close(weights(whole.checkpoint("coarse", "final")), weights(run / "coarse" / "checkpoints" / "final.ckpt"),
+                 "stopped during validation")
 
 
 def test_resume_config_keeps_the_run_and_names_what_may_not_change(data_overrides):
