@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import os
 import sys
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Optional, Sequence
@@ -53,7 +52,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 
 from .checks import check_field_types, check_float, check_int
-from .outputs import atomic_write
+from .outputs import atomic_write, make_writable_folder
 from .serialization import scrub_unsafe_advice
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
@@ -277,10 +276,7 @@ class RunFolderGuard(Callback):
         snap = _RUN.snapshot = RunFolderSnapshot.take(folder, OmegaConf.select(config, "hydra.output_subdir"),
                                                       _RUN.records)
         try:  # hydra turns a callback's exception into a warning: report it here
-            folder.mkdir(parents=True, exist_ok=True)
-            fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=folder)
-            os.close(fd)
-            os.unlink(probe)
+            make_writable_folder(folder)
         except OSError as err:
             snap.clean_after_failure()
             _report(_RUN.prog, f"cannot write the run folder {folder} ({err.strerror or err})")
@@ -289,23 +285,6 @@ class RunFolderGuard(Callback):
 def _report(prog: str, message: str) -> None:
     print(f"{prog}: error: {message}", file=sys.stderr, flush=True)
     raise SystemExit(USAGE_ERROR)
-
-
-def report_user_errors(prog: str, work: Callable[[], Any]) -> Any:
-    """``work()`` with this module's error handling, for a command that is not a hydra main (e.g.
-    ``svr.demo``, argparse + hydra's compose API): a user's mistake, or a command line hydra cannot
-    compose, is one line ``<prog>: error: ...`` with exit status ``USAGE_ERROR``."""
-    from hydra.errors import ConfigCompositionException, OverrideParseException
-
-    try:
-        return work()
-    except (ConfigCompositionException, OverrideParseException) as err:
-        _report(prog, _one_line(str(err)))
-    except Exception as err:
-        message = user_message(err)
-        if message is None:
-            raise
-        _report(prog, message)
 
 
 GUARD_OVERRIDE = f"+hydra.callbacks.sdfcommon_run_folder._target_={__name__}.RunFolderGuard"
@@ -478,6 +457,6 @@ OmegaConf.register_new_resolver("first_set", _first_set, replace=True)
 OmegaConf.register_new_resolver("config_options", _config_options, replace=True)
 
 
-__all__ = ["hydra_entry", "compose", "run_task", "report_user_errors", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
+__all__ = ["hydra_entry", "compose", "run_task", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
            "RunFolderGuard", "RunFolderSnapshot", "config_value", "config_int",
            "config_float", "config_choice", "config_ints", "config_bool", "config_object", "CONFIG_DIR"]

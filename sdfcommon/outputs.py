@@ -145,11 +145,21 @@ def ensure_output_dir(path: str | Path, argument: str = "output_dir") -> Path:
     """
     folder = Path(path).expanduser()
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
+        make_writable_folder(folder)
     except OSError as err:
         raise ValueError(f"{argument}: cannot write to the folder {folder} ({err.strerror or err})") from None
     remove_stale_temporaries(folder)
     return folder
+
+
+def make_writable_folder(folder: str | Path) -> None:
+    """Creates ``folder`` (and its parents) if needed and writes and deletes a probe file in it.
+
+    Raises:
+        OSError when the folder cannot be created or written.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fd, probe = tempfile.mkstemp(prefix=".write-test.", dir=folder)
+    os.close(fd)
+    os.unlink(probe)
