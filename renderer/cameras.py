@@ -265,9 +265,11 @@ class Cameras:
         Args:
             points: (B, P, 3) or (P, 3) world points (the latter shared by all cameras).
         Returns:
-            pixels: (B, P, 2) as (column, row), pixel centres at integer + 0.5... minus 0.5, i.e. the
-                centre of pixel (r, c) projects to exactly (c, r).
-            depth: (B, P) distance along ``forward`` (positive in front of the camera).
+            pixels: (B, P, 2) continuous (column, row) in pixels, integral at pixel centres: the
+                centre of pixel (r, c) (the point its ``rays`` direction goes through) projects to
+                exactly (c, r), and the image's top-left corner to (-0.5, -0.5).
+            depth: (B, P) the point's coordinate along ``forward`` (z in the camera frame, not the
+                distance to the eye; positive in front of the camera).
         """
         if points.ndim == 2:
             points = points.unsqueeze(0).expand(self.batch_size, -1, -1)

@@ -48,7 +48,6 @@ def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4, min_tile
     inp = visuals["input"][:n]
     if inp.shape[-1] != w:
         inp = torch.nn.functional.adaptive_avg_pool2d(inp, (h, w))
-    # RGB over white where alpha says there is nothing (NMR-style inputs are already composited).
     columns = ["input"]
     for k in range(v):
         columns += [f"view {k} target mask", f"view {k} render mask"]
@@ -56,6 +55,8 @@ def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4, min_tile
             columns += [f"view {k} target colour", f"view {k} render colour"]
     rows = []
     for i in range(n):
+        # The input's RGB as given: the datasets already composite it over white
+        # (svr.data.nmr.images_to_float), so its alpha is not needed here.
         tiles = [inp[i, :3].permute(1, 2, 0)]
         for k in range(v):
             tiles.append(target[i, k, 3, :, :, None].expand(h, w, 3))
