@@ -7,11 +7,11 @@ differentiable render (forward + backward), in one run.
     python -m benchmarks.renderer_speed --device cuda   # on a GPU: writes docs/bench_renderer_cuda.md
 
 Threads: numba uses every core (the fused kernel is parallel); torch uses one thread unless
-``--torch-threads`` says otherwise (0: torch's default, every core). On the shared 2-core machine
-this was measured on, torch's OpenMP workers busy-wait for each other while other jobs hold the
-cores, which made the reference march (a long chain of PyTorch ops) 5-35x slower and its timings
-erratic; one thread is the reference's fastest and steadiest setting there (and what
-``python -m mvr`` uses), so the comparison does not flatter the fused kernel.
+``--torch-threads`` says otherwise (0: torch's default, every core). On a machine whose cores are
+shared with other jobs, torch's OpenMP workers busy-wait for each other, which makes the reference
+march (a long chain of PyTorch ops) many times slower and its timings erratic
+(docs/bench_renderer_torch_all.md); one thread is the reference's fastest and steadiest setting
+there (and what ``python -m mvr`` uses), so the comparison does not flatter the fused kernel.
 
 Scenes: B grids of 64^3 (a torus, its radii varied a little per grid), one camera per grid at
 distance 2.5 from a random direction, 40 degree field of view (the torus fills part of the

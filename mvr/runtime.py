@@ -1,17 +1,20 @@
-"""Process-wide settings for long CPU runs (called by the entry points, never on import).
+"""Process-wide settings for long CPU runs (called by ``python -m mvr`` and the benchmarks, never on
+import).
 
-Two measured effects on the shared 2-core machines this project runs on:
+Three effects, each large on machines whose few cores are shared with other jobs (the figures
+measured on one such machine: docs/measurements.md):
 
-* Thread oversubscription: with other jobs on the cores, torch's intra-op thread pool made the
-  64^3 eikonal term 30-60x slower (2 threads: ~0.8 s per evaluation, 1 thread: ~14 ms).
-* Page faults: glibc serves every allocation above 128 KiB by a fresh ``mmap`` and returns it to
-  the OS when freed, so each backward pass, which allocates many grid-sized (1 MiB at 64^3)
-  gradient buffers, page-faults them in again; under this VM that took ~0.5-1 s per render of a
-  64^3 grid. Raising glibc's mmap and trim thresholds (``mallopt``) keeps freed memory in the heap
-  for reuse: ~50 ms instead.
+* Thread oversubscription: with other jobs on the cores, torch's intra-op threads wait for each
+  other, which made the 64^3 eikonal term many times slower on 2 threads than on 1.
+* Page faults: glibc serves an allocation above its mmap threshold (128 KiB to start with) by a
+  fresh ``mmap`` and returns it to the OS when freed, so each backward pass, which allocates many
+  grid-sized (1 MiB at 64^3) gradient buffers, can page-fault them in again. Raising glibc's mmap
+  and trim thresholds and its top pad (``mallopt``, ``tune_allocator``) keeps freed memory in the
+  heap for reuse.
 * Denormal floats: Adam's second moments of the tiny gradients that far-away grid values receive
-  underflow into denormals, which x86 CPUs process ~100x slower; flushing them to zero (FTZ/DAZ,
-  ``torch.set_flush_denormal``) made an update at 64^3 about twice as fast when measured.
+  underflow into denormals, which x86 CPUs process far more slowly than normal floats; flushing
+  them to zero (FTZ/DAZ, ``torch.set_flush_denormal``, for the calling thread) makes an update at
+  64^3 faster.
 """
 from __future__ import annotations
 

@@ -12,8 +12,8 @@ hits (and the soft silhouettes) is differentiable, in plain PyTorch.
 
 Importing the package asks PyTorch to back large CPU tensors with transparent huge pages
 (``THP_MEM_ALLOC_ENABLE=1``, unless the variable is already set; ``0`` turns it off): a render's
-gradient is a fresh grid-sized buffer every backward pass, and with 4 KiB pages zeroing one for
-32 grids of 64^3 measured 11 ms here, 4-5 ms with huge pages (docs/bench_renderer.md).
+gradient is a fresh grid-sized buffer every backward pass, and zeroing it is several times faster
+with huge pages than with 4 KiB pages (docs/measurements.md).
 """
 import os as _os
 

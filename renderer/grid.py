@@ -149,7 +149,7 @@ class SDFGrid:
     @property
     def _index_dtype(self) -> torch.dtype:
         """The integer type of flat indices into ``values``: int32 while they fit (gathers and
-        scatters with int32 indices measured ~2x faster on CPU than with int64), else int64."""
+        scatters with int32 indices are faster on the CPU than with int64), else int64."""
         return torch.int32 if self.values.numel() < 2**31 else torch.int64
 
     def _cells(self, points: torch.Tensor):

@@ -3,8 +3,7 @@
 A training step at the demo's size allocates and frees dozens of 4-16 MiB tensors (64^3 grids of
 a batch and their gradients). glibc serves blocks above its mmap threshold with fresh ``mmap``
 pages and returns them on free, so every such tensor pays a page fault per 4 KiB page on first
-touch, again on every step: measured on the 2-core machine, half the time of the narrow-band
-regularisers' forward + backward and a third of the decoder's. Raising the threshold to its
+touch, again on every step, a large part of a step's time on a CPU (docs/measurements.md). Raising the threshold to its
 maximum (32 MiB on 64-bit Linux) and never trimming the heap keeps those pages in the process
 and reuses them. The process keeps its peak heap size; blocks above 32 MiB are unaffected.
 """

@@ -66,11 +66,10 @@ def _start_thread_pool() -> None:
 
     numba prefers its "omp" layer, and in a process that imported torch that layer runs on torch's
     GNU OpenMP runtime, whose idle workers busy-wait after each parallel region. The kernel is
-    followed by PyTorch code (the differentiable stage), and on the shared 2-core machine this
-    project was measured on, the spinning worker made it ~40x slower (an elementwise op on
-    131072 x 3 floats: 0.36 ms before a fused march, 14 ms after; a forward + backward render at
-    64^2, B = 32: 2.8 s instead of 0.27 s). numba's own "workqueue" pool sleeps between kernels and
-    marched as fast here. It runs one kernel at a time (``_launch_cpu`` serialises calls) and is
+    followed by PyTorch code (the differentiable stage), and on a machine whose cores are shared
+    with other jobs the spinning workers take the cores that code needs, which made it many times
+    slower (figures: docs/measurements.md). numba's own "workqueue" pool sleeps between kernels and
+    marches as fast. It runs one kernel at a time (``_launch_cpu`` serialises calls) and is
     fork-safe, unlike GNU OpenMP. The layer is process-wide and fixed when the pool starts, so
     nothing changes if numba's pool is already running or ``NUMBA_THREADING_LAYER`` is set.
     """

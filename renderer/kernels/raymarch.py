@@ -35,7 +35,7 @@ from numba.extending import overload
 # division (no zero-divisor check and exception path: divisors here are never zero). The small
 # helpers are inlined into the march at numba's IR level; inlined into a function compiled *with*
 # reference counting they would incref and decref their array arguments at every call (atomic
-# operations: a trilinear sample measured ~6x slower), so only ``_RAY_OPTIONS`` functions call them.
+# operations, several times slower: docs/measurements.md), so only ``_RAY_OPTIONS`` functions call them.
 _RAY_OPTIONS = dict(cache=True, _nrt=False, error_model="numpy")
 ray_function = njit(**_RAY_OPTIONS)
 ray_helper = njit(inline="always", **_RAY_OPTIONS)
@@ -307,8 +307,8 @@ def _write(r, t, hit, ex, ey, ez, te, steps, t_out, hit_out, extreme_out, t_extr
 # A CPU thread marches LANES rays at once, one sample of each in turn, taking the next ray of its
 # block into a lane as soon as the lane's ray finishes. A lone ray's samples form a chain of
 # dependent cache misses (each position needs the previous sample); the lanes' samples are
-# independent, so their loads are issued together and their misses overlap. Measured on the
-# 2-core machine of docs/bench_renderer.md: 1.5-1.6x faster than one ray per thread.
+# independent, so their loads are issued together and their misses overlap, which is faster than
+# one ray per thread (docs/measurements.md).
 LANES = 8
 BLOCK = 64  # rays per prange iteration (per block the lanes work through)
 # rows of the per-lane state: float (grid dtype) and int64

@@ -44,7 +44,8 @@ def upsample_grid(values: torch.Tensor, matrix: torch.Tensor) -> torch.Tensor:
 class _Upsample2Centres(torch.autograd.Function):
     """``upsample2_centres`` with a hand-written backward: each pass writes the even and odd output
     samples into strided views of one new tensor (no concatenations or stacks), and the backward
-    is the transposed passes. 1.7x faster forward + backward than the same passes in autograd."""
+    is the transposed passes: faster forward + backward than the same passes through autograd
+    (docs/measurements.md)."""
 
     @staticmethod
     def forward(ctx, x: torch.Tensor) -> torch.Tensor:  # noqa: D401 - autograd API
@@ -84,9 +85,9 @@ def upsample2_centres(values: torch.Tensor) -> torch.Tensor:
     """Linear 2x upsampling of (B, n, n, n) grids to (B, 2n, 2n, 2n) with cell-centred alignment
     (``F.interpolate(scale_factor=2, mode="trilinear", align_corners=False)``: edges clamped):
     along each axis output ``2i`` is ``0.75 x[i] + 0.25 x[i-1]`` and ``2i+1`` is ``0.75 x[i] +
-    0.25 x[i+1]``. Three separable passes of elementwise work: forward + backward 32^3 -> 64^3 at
-    batch 16 on a 2-core CPU in ~10 ms, against ~45 ms for ``upsample_grid``'s dense matrices and
-    ~75 ms for ``F.interpolate``."""
+    0.25 x[i+1]``. Three separable passes of elementwise work, so on a CPU its forward + backward is
+    several times faster than ``upsample_grid``'s dense matrices or ``F.interpolate``
+    (docs/measurements.md)."""
     if values.ndim != 4 or min(values.shape[1:]) < 2:
         raise ValueError(f"values must have shape (B, n, n, n) with n >= 2, got {tuple(values.shape)}")
     return _Upsample2Centres.apply(values)
@@ -119,7 +120,7 @@ class SDFDecoder(nn.Module):
             conv (kernel 4, stride 2) from the last features straight to one channel at twice the
             side (no wide feature grid at that side: several times cheaper at 32^3 on a CPU).
         upsampling: "corners" (trilinear, the end samples coinciding: ``upsample_grid``) or
-            "centres" (cell-centred 2x steps, ``upsample2_centres``: half the time; needs
+            "centres" (cell-centred 2x steps, ``upsample2_centres``: faster; needs
             ``grid_resolution`` = the head's side times a power of two). With "centres" the bound
             (and the template, sampled where the head's samples sit) applies at the head's side,
             before the upsampling (which keeps it): the tanh then runs on 8x fewer values.
@@ -192,7 +193,7 @@ class SDFDecoder(nn.Module):
             if template_radius > 0 else torch.zeros(t_side, t_side, t_side), persistent=False)
         if upsampling == "corners":
             self.register_buffer("upsample", linear_upsample_matrix(side, grid_resolution), persistent=False)
-        # 3D convs on a CPU are several times faster (backward up to ~6x) in channels-last layout.
+        # 3D convs are faster on a CPU in channels-last layout (docs/measurements.md).
         self.to(memory_format=torch.channels_last_3d)
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
