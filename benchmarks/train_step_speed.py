@@ -209,8 +209,11 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
 
             fns[f"step {stage}"] = step
     results: dict[str, dict[str, float]] = {name: {"peak_mib": measure_memory(fn, device)} for name, fn in fns.items()}
-    try:  # what svr.training.train does first, where the checkout has it
-        from svr.host_memory import keep_freed_memory
+    try:  # what svr.training.train does first, where the checkout has it (older ones: svr.host_memory)
+        try:
+            from sdfcommon.host_memory import keep_freed_memory
+        except ImportError:
+            from svr.host_memory import keep_freed_memory
     except ImportError:
         allocator = "glibc defaults"
     else:

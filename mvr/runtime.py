@@ -10,7 +10,7 @@ measured on one such machine: docs/measurements.md):
   fresh ``mmap`` and returns it to the OS when freed, so each backward pass, which allocates many
   grid-sized (1 MiB at 64^3) gradient buffers, can page-fault them in again. Raising glibc's mmap
   and trim thresholds and its top pad (``mallopt``, ``tune_allocator``) keeps freed memory in the
-  heap for reuse.
+  heap for reuse (``sdfcommon.host_memory``, shared with single-view training).
 * Denormal floats: Adam's second moments of the tiny gradients that far-away grid values receive
   underflow into denormals, which x86 CPUs process far more slowly than normal floats; flushing
   them to zero (FTZ/DAZ, ``torch.set_flush_denormal``, for the calling thread) makes an update at
@@ -18,33 +18,11 @@ measured on one such machine: docs/measurements.md):
 """
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
 from typing import Optional
 
 import torch
 
-_M_TRIM_THRESHOLD = -1
-_M_TOP_PAD = -2
-_M_MMAP_THRESHOLD = -3
-
-
-def tune_allocator(mmap_threshold: int = 32 << 20, trim_threshold: int = 1 << 30, top_pad: int = 64 << 20) -> bool:
-    """Keeps freed memory in glibc's heap (see the module docstring). Returns False where the C
-    library is not glibc (nothing changed)."""
-    name = ctypes.util.find_library("c")
-    if not name:
-        return False
-    try:
-        libc = ctypes.CDLL(name)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return False
-    ok = mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
-    ok = (mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1) and ok
-    ok = (mallopt(_M_TOP_PAD, int(top_pad)) == 1) and ok
-    return ok
-
+from sdfcommon.host_memory import tune_allocator
 
 def configure_runtime(threads: Optional[int] = 1, tune_malloc: bool = True, flush_denormal: bool = True) -> dict:
     """Sets torch's and numba's thread counts (None: leave them) and, optionally, the allocator and

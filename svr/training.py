@@ -44,12 +44,12 @@ from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
 from sdfcommon.cli import hydra_entry
+from sdfcommon.host_memory import keep_freed_memory
 from sdfcommon.outputs import remove_stale_temporaries, write_csv, write_text
 
 from .callbacks import AtomicCheckpointIO
 from .checkpoints import CHECKPOINT_KEY, STAGES, check_stage, load_checkpoint, load_network_weights
 from .distributed import launch_rank_is_zero
-from .host_memory import keep_freed_memory
 from .losses import LossWeights
 from .models.module import SVRLightningModule
 from .models.network import SVRNet

@@ -1,4 +1,4 @@
-"""Host memory allocation for training on a CPU.
+"""Host memory allocation for long CPU runs (single-view training, multi-view reconstruction).
 
 A training step at the demo's size allocates and frees dozens of 4-16 MiB tensors (64^3 grids of
 a batch and their gradients). glibc serves blocks above its mmap threshold with fresh ``mmap``
@@ -24,13 +24,10 @@ _MMAP_THRESHOLD_MAX = 32 * 2**20  # glibc's limit on 64-bit: 4 MiB * sizeof(long
 _tuned = False
 
 
-def keep_freed_memory() -> bool:
-    """Tells glibc malloc to keep freed blocks up to 32 MiB in the process (see the module
-    docstring). Idempotent; returns True where it took effect (Linux with glibc), False elsewhere
-    (other C libraries and systems keep their own behaviour)."""
-    global _tuned
-    if _tuned:
-        return True
+def tune_allocator(mmap_threshold: int = _MMAP_THRESHOLD_MAX, trim_threshold: int = 1 << 30,
+                   top_pad: int = 64 << 20) -> bool:
+    """Sets glibc malloc's mmap threshold, trim threshold and top pad (``mallopt``). Returns True
+    where all three took effect (Linux with glibc); False elsewhere (nothing changed)."""
     if not sys.platform.startswith("linux"):
         return False
     try:
@@ -40,12 +37,20 @@ def keep_freed_memory() -> bool:
         return False
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     mallopt.restype = ctypes.c_int
-    ok = (mallopt(_M_MMAP_THRESHOLD, _MMAP_THRESHOLD_MAX) == 1
-          and mallopt(_M_TRIM_THRESHOLD, 2**30) == 1 and mallopt(_M_TOP_PAD, 64 * 2**20) == 1)
-    if ok:
+    ok = mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
+    ok = (mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1) and ok
+    return (mallopt(_M_TOP_PAD, int(top_pad)) == 1) and ok
+
+
+def keep_freed_memory() -> bool:
+    """Tells glibc malloc to keep freed blocks up to 32 MiB in the process (see the module
+    docstring; ``tune_allocator`` with its defaults). Idempotent; returns True where it took effect
+    (Linux with glibc), False elsewhere (other C libraries and systems keep their own behaviour)."""
+    global _tuned
+    if not _tuned and tune_allocator():
         _tuned = True
         log.debug("malloc keeps freed blocks up to %d MiB", _MMAP_THRESHOLD_MAX // 2**20)
-    return ok
+    return _tuned
 
 
-__all__ = ["keep_freed_memory"]
+__all__ = ["keep_freed_memory", "tune_allocator"]
