@@ -184,9 +184,9 @@ def resume_point(run_dir: Path, schedule: Sequence[str]) -> tuple[bool, Optional
     """Where a demo run left off: (finished, checkpoint to resume from).
 
     Finished when the last scheduled stage wrote ``final.ckpt``; otherwise the latest checkpoint
-    of the latest stage that wrote one (``svr.training.latest_checkpoint``; None: start afresh).
+    of the latest stage that wrote one (``svr.resume.latest_checkpoint``; None: start afresh).
     """
-    from .training import latest_checkpoint
+    from .resume import latest_checkpoint
 
     if (Path(run_dir) / schedule[-1] / "checkpoints" / "final.ckpt").is_file():
         return True, Path(run_dir) / schedule[-1] / "checkpoints" / "final.ckpt"

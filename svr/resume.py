@@ -157,7 +157,7 @@ def resume_arguments(argv: Sequence[str]) -> list[str]:
 
 def resumed_config(cfg: DictConfig, run_dir: Path, overrides: Sequence[str]) -> DictConfig:
     """``cfg`` for a fresh run; for a run resumed in its own folder, the folder's ``config.yaml``
-    with the changes the command line may make (``svr.training.resume_config``), each logged."""
+    with the changes the command line may make (``resume_config``), each logged."""
     ckpt = cfg.get("ckpt_path")
     if ckpt is None:
         return cfg
