@@ -36,6 +36,13 @@ def run_folder_of(ckpt_path: str | Path) -> Optional[Path]:
     return run if (run / "config.yaml").is_file() else None
 
 
+def run_named_by(ckpt_path: str | Path) -> Optional[Path]:
+    """The run a ``ckpt_path`` setting resumes: the folder itself when it holds a ``config.yaml``,
+    else the run its checkpoint belongs to (``run_folder_of``); None for neither."""
+    path = Path(ckpt_path).expanduser()
+    return path.resolve() if (path / "config.yaml").is_file() else run_folder_of(path)
+
+
 def latest_checkpoint(run_dir: str | Path, schedule: Sequence[str]) -> Optional[Path]:
     """What a stopped run resumes from: the newest of ``last.ckpt``, ``final.ckpt`` and Lightning's
     SLURM checkpoints (``<stage>/hpc_ckpt_<n>.ckpt``) of the latest scheduled stage that wrote one
@@ -147,8 +154,7 @@ def resume_arguments(argv: Sequence[str]) -> list[str]:
     ckpt = _override_value(argv, "ckpt_path")
     if ckpt in (None, "", "null"):
         return []
-    path = Path(ckpt).expanduser()
-    run = path.resolve() if (path / "config.yaml").is_file() else run_folder_of(path)
+    run = run_named_by(ckpt)
     if run is None:
         return []
     quoted = str(run).replace("\\", "\\\\").replace("'", "\\'")
@@ -161,8 +167,7 @@ def resumed_config(cfg: DictConfig, run_dir: Path, overrides: Sequence[str]) -> 
     ckpt = cfg.get("ckpt_path")
     if ckpt is None:
         return cfg
-    path = Path(ckpt).expanduser()
-    run = path.resolve() if (path / "config.yaml").is_file() else run_folder_of(path)
+    run = run_named_by(ckpt)
     if run is None or run != run_dir.resolve():
         return cfg
     saved = OmegaConf.load(run / "config.yaml")
@@ -197,5 +202,5 @@ def slurm_arguments(argv: Sequence[str], environ: Mapping[str, str]) -> list[str
     return out
 
 
-__all__ = ["run_folder_of", "latest_checkpoint", "resume_config", "resumed_config", "resume_arguments",
+__all__ = ["run_folder_of", "run_named_by", "latest_checkpoint", "resume_config", "resumed_config", "resume_arguments",
            "slurm_arguments", "RESUMABLE_KEYS"]

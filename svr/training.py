@@ -249,19 +249,16 @@ def continue_metrics(log_dir: Path, resume_step: Optional[int]) -> Optional[Path
     old = log_dir / "metrics.csv"
     if not old.is_file():
         return None
+    if resume_step is not None:  # rewritten in place, atomically
+        with open(old, newline="") as f:
+            reader = csv.DictReader(f)
+            columns = list(reader.fieldnames or [])
+            rows = [r for r in reader if _step_of(r) is not None and _step_of(r) <= resume_step]
+        return write_csv(old, rows, columns)
     k = 1
     while (log_dir / f"metrics.{k}.csv").exists():
         k += 1
-    aside = old.rename(log_dir / f"metrics.{k}.csv")
-    if resume_step is None:
-        return aside
-    with open(aside, newline="") as f:
-        reader = csv.DictReader(f)
-        columns = list(reader.fieldnames or [])
-        rows = [r for r in reader if _step_of(r) is not None and _step_of(r) <= resume_step]
-    write_csv(old, rows, columns)
-    aside.unlink()
-    return old
+    return old.rename(log_dir / f"metrics.{k}.csv")
 
 
 def _step_of(row: dict) -> Optional[int]:
