@@ -8,6 +8,10 @@ PIP := $(PY) -m pip
 # torch would pull several GB of CUDA packages.
 TORCH_CPU ?= torch==2.13.0
 HAS_GPU := $(shell command -v nvidia-smi >/dev/null 2>&1 && nvidia-smi -L >/dev/null 2>&1 && echo 1)
+# On a GPU host: the extra with numba-cuda for the driver's CUDA major version (nvidia-smi's
+# "CUDA Version: 13.0" header), so the fused CUDA kernels build instead of the slow fallback.
+CUDA_MAJOR := $(shell nvidia-smi 2>/dev/null | sed -n 's/.*CUDA Version: *\([0-9]*\).*/\1/p' | head -n 1)
+CUDA_EXTRA := $(if $(filter 12,$(CUDA_MAJOR)),cuda12,cuda13)
 
 .PHONY: install test test-slow demo bench clean
 
@@ -16,10 +20,11 @@ $(VENV)/.installed: pyproject.toml Makefile
 	$(PIP) install --upgrade pip wheel setuptools
 ifeq ($(HAS_GPU),1)
 	$(PIP) install "torch>=2.4"
+	$(PIP) install -e ".[dev,$(CUDA_EXTRA)]"
 else
 	$(PIP) install $(TORCH_CPU)
-endif
 	$(PIP) install -e ".[dev]"
+endif
 	touch $@
 
 install: $(VENV)/.installed
