@@ -12,7 +12,7 @@ Command line: ``python -m mvr target=torus out_dir=outputs/mvr/torus`` (configs/
 from .losses import view_image_losses, view_silhouette_losses
 from .metrics import SurfaceDistances, surface_distances
 from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
-from .raycast import RayHits, TriangleGrid
+from .raycast import EmbreeCaster, RayHits, TriangleGrid, embree_available, mesh_caster
 from .reconstruct import (EvalSettings, GridSettings, NoiseSettings, ReconstructionResult, RigSettings,
                           TargetSettings, default_scene, reconstruct)
 from .runtime import configure_runtime
@@ -25,7 +25,7 @@ __all__ = [
     "RigSettings", "GridSettings", "TargetSettings", "NoiseSettings", "EvalSettings", "Schedule", "OptimSettings",
     "default_scene", "configure_runtime",
     "Target", "TargetImages", "make_target", "load_mesh", "normalise_mesh", "shape_mesh", "MESH_FORMATS",
-    "SHAPES", "Shape", "TriangleGrid", "RayHits",
+    "SHAPES", "Shape", "mesh_caster", "embree_available", "EmbreeCaster", "TriangleGrid", "RayHits",
     "ViewLosses", "LevelReport", "optimise_level", "fill_cavities", "rule_image_size",
     "view_image_losses", "view_silhouette_losses",
     "surface_distances", "SurfaceDistances",

@@ -1,17 +1,27 @@
-"""Ray casting against triangle meshes: the first hit of each ray (numba, CPU).
+"""Ray casting against triangle meshes: the first hit of each ray.
 
 The target images of multi-view reconstruction come from the target mesh itself, never from our
-SDF renderer. trimesh's pure-Python intersector needs minutes (and gigabytes) for the ~10^6 rays of
-a 26-view rig, so this module casts rays through a uniform grid of cells over the mesh (3D DDA,
-Amanatides & Woo) and tests the triangles binned in each cell (Moller-Trumbore, two-sided), one
-ray per numba ``prange`` iteration. ``tests/mvr/test_raycast.py`` checks it against trimesh.
+SDF renderer. ``mesh_caster`` picks the caster:
+
+* ``EmbreeCaster``: Intel Embree through trimesh (``trimesh.ray.ray_pyembree``, PyPI ``embreex``,
+  wheels for x86_64), the well-kept library and the fastest here (docs/mvr_real_scans.md times
+  it); used wherever ``embreex`` imports.
+* ``TriangleGrid``: this project's own numba caster, kept only as the fallback where ``embreex``
+  does not install (e.g. aarch64): a uniform grid of cells over the mesh (3D DDA, Amanatides &
+  Woo), the triangles binned in each cell tested by Moller-Trumbore (two-sided), one ray per numba
+  ``prange`` iteration. trimesh's pure-Python intersector is no fallback: it ran out of memory on
+  26 x 40^2 rays against a 75k-triangle scan (the 26-view rig casts ~10^6 rays).
+
+``tests/mvr/test_raycast.py`` checks both against trimesh's reference intersector and each other.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Union
 
 import numba
 import numpy as np
+import trimesh
 
 # Relative slack when binning triangles into cells and accepting hits at cell faces, so a hit
 # exactly on a cell boundary is never lost to rounding.
@@ -47,14 +57,7 @@ class TriangleGrid:
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, cells_per_face: float = 2.0,
                  max_cells_per_axis: int = 256):
-        v = np.ascontiguousarray(vertices, dtype=np.float64)
-        f = np.ascontiguousarray(faces, dtype=np.int64)
-        if v.ndim != 2 or v.shape[1] != 3:
-            raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
-        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
-            raise ValueError(f"faces must have shape (F, 3) with F >= 1, got {f.shape}")
-        if f.min() < 0 or f.max() >= len(v):
-            raise ValueError("faces index vertices that do not exist")
+        v, f = _checked_mesh(vertices, faces)
         self.triangles = np.ascontiguousarray(v[f])  # (F, 3, 3)
         lo = self.triangles.reshape(-1, 3).min(axis=0)
         hi = self.triangles.reshape(-1, 3).max(axis=0)
@@ -72,10 +75,7 @@ class TriangleGrid:
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
         """First hits of rays (origins (R, 3), unit directions (R, 3), world) with the triangles."""
-        o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
-        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-        if o.shape != d.shape:
-            raise ValueError(f"origins {o.shape} and directions {d.shape} must have the same shape")
+        o, d = _checked_rays(origins, directions)
         t, face, u, w = _cast(o, d, self.triangles, self.lo, self.cell, self.dims, self.offsets, self.items)
         hit = face >= 0
         bary = np.zeros((len(o), 3))
@@ -84,6 +84,84 @@ class TriangleGrid:
         bary[hit, 2] = w[hit]
         return RayHits(hit=hit, t=t, face=face, barycentric=bary)
 
+
+
+class EmbreeCaster:
+    """First hits by Intel Embree (``trimesh.ray.ray_pyembree``; needs the ``embreex`` package).
+
+    Embree intersects in single precision: hit distances agree with the double-precision
+    ``TriangleGrid`` to about 1e-6 of the scene's size, far below a pixel's footprint.
+
+    Args:
+        vertices: (V, 3) float array (world); faces: (F, 3) int array of vertex indices.
+    Raises:
+        ImportError: ``embreex`` is not installed (see ``embree_available``).
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        from trimesh.ray.ray_pyembree import RayMeshIntersector  # ImportError without embreex
+
+        v, f = _checked_mesh(vertices, faces)
+        self.mesh = trimesh.Trimesh(vertices=v, faces=f, process=False)
+        self._intersector = RayMeshIntersector(self.mesh)
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+        """First hits of rays (origins (R, 3), unit directions (R, 3), world) with the triangles."""
+        o, d = _checked_rays(origins, directions)
+        face_idx, ray_idx, points = self._intersector.intersects_id(
+            o, d, multiple_hits=False, return_locations=True)
+        t = np.full(len(o), np.inf)
+        face = np.full(len(o), -1, dtype=np.int64)
+        bary = np.zeros((len(o), 3))
+        if len(ray_idx):
+            t[ray_idx] = ((points - o[ray_idx]) * d[ray_idx]).sum(axis=1)
+            face[ray_idx] = face_idx
+            bary[ray_idx] = trimesh.triangles.points_to_barycentric(self.mesh.triangles[face_idx], points)
+        return RayHits(hit=face >= 0, t=t, face=face, barycentric=bary)
+
+
+def embree_available() -> bool:
+    """Whether Embree can be used (``embreex`` imports and trimesh finds it)."""
+    try:
+        from trimesh.ray import ray_pyembree  # noqa: F401
+    except ImportError:
+        return False
+    return bool(trimesh.ray.has_embree)
+
+
+CASTERS = ("auto", "embree", "grid")
+
+
+def mesh_caster(vertices: np.ndarray, faces: np.ndarray, engine: str = "auto") -> Union[EmbreeCaster, TriangleGrid]:
+    """A ray caster for a triangle mesh: ``"embree"`` (EmbreeCaster), ``"grid"`` (this project's
+    numba TriangleGrid) or ``"auto"``: Embree where it imports, else the grid."""
+    if engine not in CASTERS:
+        raise ValueError(f"ray caster engine must be one of {CASTERS}, got {engine!r}")
+    if engine == "embree" or (engine == "auto" and embree_available()):
+        return EmbreeCaster(vertices, faces)
+    return TriangleGrid(vertices, faces)
+
+
+def _checked_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(V, 3) float64 vertices and (F, 3) int64 faces, checked."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+        raise ValueError(f"faces must have shape (F, 3) with F >= 1, got {f.shape}")
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError("faces index vertices that do not exist")
+    return v, f
+
+
+def _checked_rays(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(R, 3) float64 origins and directions, checked."""
+    o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+    d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    if o.shape != d.shape:
+        raise ValueError(f"origins {o.shape} and directions {d.shape} must have the same shape")
+    return o, d
 
 @numba.njit(cache=True)
 def _triangle_cells(tri, lo, cell, dims):

@@ -5,9 +5,9 @@ A target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a bui
 so that the longest side of its bounding box is ``extent`` (world units).
 
 The target images come from the mesh itself: rays through the pixel centres of our cameras are cast
-against its triangles (``mvr.raycast``) and the hits are shaded by ``renderer.shade_lambert``
-with the same scene (lights, ambient, albedo, background) the optimiser renders with. The optimiser
-never sees an image made by its own renderer.
+against its triangles (``mvr.raycast.mesh_caster``: Embree where it installs) and the hits are
+shaded by ``renderer.shade_lambert`` with the same scene (lights, ambient, albedo, background) the
+optimiser renders with. The optimiser never sees an image made by its own renderer.
 
 Normals for the shading: ``"smooth"`` (default) interpolates the mesh's vertex normals with the
 barycentric weights of the hit, the right choice for meshes that approximate smooth surfaces (our
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Union
 
 import numpy as np
 import torch
@@ -27,7 +27,7 @@ import trimesh
 from renderer import Cameras, Scene, shade_lambert
 from sdfcommon.geometry import sdf_to_mesh
 
-from .raycast import TriangleGrid
+from .raycast import EmbreeCaster, TriangleGrid, mesh_caster
 from .shapes import SHAPES
 
 MESH_FORMATS = (".obj", ".ply", ".off", ".stl", ".glb")
@@ -66,7 +66,7 @@ class Target:
         self.mesh = mesh
         self.scale = float(scale)
         self.normals = normals
-        self._caster: Optional[TriangleGrid] = None
+        self._caster: Optional[Union[EmbreeCaster, TriangleGrid]] = None
 
     @property
     def diagonal(self) -> float:
@@ -81,7 +81,7 @@ class Target:
             TargetImages with (V, H, W, C) images, C = ``scene.channels``, and (V, H, W) masks.
         """
         if self._caster is None:
-            self._caster = TriangleGrid(self.mesh.vertices, self.mesh.faces)
+            self._caster = mesh_caster(self.mesh.vertices, self.mesh.faces)
         cams = cameras.to(dtype=torch.float64, device="cpu")
         origins, directions = cams.rays()
         v, h, w, _ = directions.shape
