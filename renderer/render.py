@@ -12,6 +12,7 @@ from .reference import min_threshold
 from .scene import Scene
 from .settings import TraceSettings
 from .shading import hit_points_conservative, shade_lambert, soft_silhouette, surface_normals
+from .stage2 import STAGE2, can_fuse, fused_backend, shade_trace_fused
 from .trace import TraceResult, sphere_trace
 
 
@@ -45,6 +46,10 @@ def render(
 ) -> RenderOutput:
     """Renders SDF grids: sphere tracing without gradients, then differentiable local shading.
 
+    With a fused march (``backend`` "cpu", "cuda", or "auto" where the kernels are available) the
+    differentiable stage is fused too (renderer/stage2.py), except for the exact intersection;
+    ``backend="reference"`` runs the PyTorch specification of both stages.
+
     Args:
         grid: B_g grids. cameras: B_c cameras, a multiple of B_g; camera c sees grid
             ``c // (B_c / B_g)`` (one grid seen by many cameras, or G grids by V cameras each).
@@ -66,8 +71,27 @@ def _scatter(values: torch.Tensor, index: torch.Tensor, total: int, fill) -> tor
     return out.index_put((index,), values)
 
 
-def shade_trace(grid: SDFGrid, cameras: Cameras, trace: TraceResult, scene: Scene) -> RenderOutput:
-    """The differentiable stage: the passes ``scene.effects`` need, from a fixed TraceResult."""
+def shade_trace(grid: SDFGrid, cameras: Cameras, trace: TraceResult, scene: Scene,
+                stage2: str = "auto") -> RenderOutput:
+    """The differentiable stage: the passes ``scene.effects`` need, from a fixed TraceResult.
+
+    Args:
+        stage2: "reference", the PyTorch code below (renderer/shading.py); "fused", one kernel
+            forward and one backward (renderer/stage2.py; the grid's device must have the fused
+            kernels, and the intersection must be the conservative one); "auto", fused after a
+            fused march with the conservative intersection, else the reference.
+    """
+    if stage2 not in STAGE2:
+        raise ValueError(f"stage2 must be one of {STAGE2}, got {stage2!r}")
+    if stage2 == "fused" or (stage2 == "auto" and can_fuse(trace, scene)):
+        backend, why = fused_backend(grid.device)
+        if backend is None:
+            if stage2 == "fused":
+                raise RuntimeError(f"stage2='fused' is not available here: {why}")
+        else:
+            depth, normal, silhouette, image = shade_trace_fused(grid, cameras, trace, scene, backend)
+            return RenderOutput(hit=trace.hit, depth=depth, normal=normal, silhouette=silhouette, image=image,
+                                trace=trace)
     b, h, w = trace.hit.shape
     total = b * h * w
     grid = grid._with_shared_gradient()  # every pass below samples it: one gradient buffer for all

@@ -1,11 +1,12 @@
-"""Fused sphere-tracing marches (numba CPU and CUDA) sharing one per-ray routine.
+"""The renderer's fused kernels (numba CPU and CUDA): the sphere-tracing march and the
+differentiable stage 2 (forward and backward), each sharing one per-ray routine between targets.
 
-They implement exactly the march of renderer/reference.py, which stays the specification; the
-per-ray code is renderer/kernels/raymarch.py. This module is the torch side: it checks the inputs,
-packs the grid and the settings into small parameter arrays, hands the kernels zero-copy views of
-the tensors (CPU: ``Tensor.numpy()``; CUDA: ``numba.cuda.as_cuda_array``, the CUDA array
-interface) and returns torch tensors. Nothing here is differentiable, and nothing needs to be: the
-gradients come from the PyTorch stage 2 (renderer/shading.py).
+They implement exactly the march of renderer/reference.py and the stage 2 of renderer/shading.py
+(renderer/render.py's ``shade_trace``), which stay the specification; the per-ray code is
+renderer/kernels/raymarch.py. This module is the torch side: it checks the inputs, packs the grid,
+the settings and the scene into small parameter arrays, hands the kernels zero-copy views of the
+tensors (CPU: ``Tensor.numpy()``; CUDA: ``numba.cuda.as_cuda_array``, the CUDA array interface)
+and returns torch tensors. The autograd Function around stage 2 is renderer/stage2.py.
 
 The kernels compile on first use, once per dtype, and numba caches them on disk (next to this
 package, else in numba's user cache directory, else in a temporary directory), so a new process
@@ -69,7 +70,7 @@ def _start_thread_pool() -> None:
     followed by PyTorch code (the differentiable stage), and on a machine whose cores are shared
     with other jobs the spinning workers take the cores that code needs, which made it many times
     slower (figures: docs/measurements.md). numba's own "workqueue" pool sleeps between kernels and
-    marches as fast. It runs one kernel at a time (``_launch_cpu`` serialises calls) and is
+    marches as fast. It runs one kernel at a time (``_launch`` serialises calls) and is
     fork-safe, unlike GNU OpenMP. The layer is process-wide and fixed when the pool starts, so
     nothing changes if numba's pool is already running or ``NUMBA_THREADING_LAYER`` is set.
     """
@@ -249,34 +250,114 @@ def _run(backend, grid, origins, directions, grid_index, pixel_angle, settings) 
         "t_extreme": torch.empty(r, dtype=dt, device=dev),
         "steps": torch.empty(r, dtype=torch.int32, device=dev),
     }
-    if r:
-        if backend == "cpu":
-            _launch_cpu(inputs + list(out.values()))
-        else:
-            _launch_cuda(inputs + list(out.values()), r, dev)
+    march_module = _load_march()
+    cuda_kernel = march_module.make_cuda_kernel() if backend == "cuda" else None
+    _launch(backend, march_module.march_rays_cpu, cuda_kernel, inputs + list(out.values()), r)
     out["hit"] = out["hit"].view(torch.bool)
     return out
 
 
-def _launch_cpu(tensors: list[torch.Tensor]) -> None:
-    import numba
+# ---------------------------------------------------------------------------- stage 2
+def stage2_params(grid: SDFGrid, scene, pixels: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The scene packed for the stage-2 kernels (layouts in renderer/kernels/raymarch.py):
+    ``sparams`` (grid dtype) and ``lights`` (L, 6) on the grid's device, ``sflags`` (int64; the
+    gradient flags left 0) on the CPU."""
+    from ..scene import PointLight
 
-    arrays = [x.numpy() for x in tensors]  # views: the kernel writes the output tensors in place
-    # One kernel at a time: numba's workqueue pool (see _start_thread_pool) aborts the process on
-    # concurrent launches from several Python threads.
-    with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK_BLOCKS):
-        _load_march().march_rays_cpu(*arrays)
+    m = _load_march()
+    dt = grid.dtype
+    info = torch.finfo(dt)
+    channels = scene.channels
+    background = scene.background
+    background = [float(background)] * channels if isinstance(background, (int, float)) else list(background)
+    if len(background) == 1:
+        background = background * channels
+    camera_light = scene.camera_light
+    vox = grid.voxel_size.cpu()
+    inv_span = torch.cat([1 / vox, 1 / (2 * vox)])  # as SDFGrid.sample_gradient forms them
+    sparams = torch.cat([torch.tensor([scene.ambient, scene.silhouette_sigma, info.eps, info.tiny,
+                                       0.0 if camera_light is None else camera_light], dtype=dt),
+                         inv_span, torch.tensor([*scene.albedo, *background], dtype=dt)])
+    sflags = torch.zeros(m.N_SFLAGS, dtype=torch.int64)
+    for flag, on in ((m.SF_DEPTH, scene.wants("depth")), (m.SF_NORMAL, scene.wants("normal")),
+                     (m.SF_SHADING, scene.wants("shading")), (m.SF_SILHOUETTE, scene.wants("silhouette")),
+                     (m.SF_CAM_LIGHT, camera_light is not None), (m.SF_CAM_FALLOFF, scene.camera_light_falloff)):
+        sflags[flag] = int(bool(on))
+    sflags[m.SF_PIXELS] = pixels
+    sflags[m.SF_CHANNELS] = channels
+    rows = []
+    for light in scene.lights:
+        if isinstance(light, PointLight):
+            rows.append(torch.tensor([float(m.LIGHT_POINT), *light.position, light.intensity, float(light.falloff)],
+                                     dtype=dt))
+        else:  # normalised in the grid's dtype, as shade_lambert does
+            d = torch.tensor(light.direction, dtype=dt)
+            d = d / d.norm()
+            rows.append(torch.cat([torch.zeros(1, dtype=dt), d, torch.tensor([light.intensity, 0.0], dtype=dt)]))
+    lights = torch.stack(rows) if rows else torch.zeros(0, 6, dtype=dt)
+    dev = grid.device
+    return sparams.to(dev), sflags, lights.to(dev)
 
 
-def _launch_cuda(tensors: list[torch.Tensor], r: int, device: torch.device) -> None:
+def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], rays: int) -> None:
+    if not rays:
+        return
+    if backend == "cpu":
+        import numba
+
+        # Views: the kernels write the output tensors in place. One kernel at a time: numba's
+        # workqueue pool (see _start_thread_pool) aborts the process on concurrent launches from
+        # several Python threads.
+        arrays = [x.numpy() if isinstance(x, torch.Tensor) else x for x in tensors]
+        with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK_BLOCKS):
+            cpu_kernel(*arrays)
+        return
     from numba import cuda
 
-    kernel = _load_march().make_cuda_kernel()
+    device = tensors[0].device
     index = device.index if device.index is not None else torch.cuda.current_device()
     with cuda.gpus[index]:
         # Launch on torch's current stream: ordered after the ops that made the inputs and before
         # those that read the outputs, without a synchronisation.
         stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
-        arrays = [cuda.as_cuda_array(x, sync=False) for x in tensors]
-        blocks = (r + CUDA_THREADS_PER_BLOCK - 1) // CUDA_THREADS_PER_BLOCK
-        kernel[blocks, CUDA_THREADS_PER_BLOCK, stream](*arrays)
+        arrays = [cuda.as_cuda_array(x, sync=False) if isinstance(x, torch.Tensor) else x for x in tensors]
+        blocks = (rays + CUDA_THREADS_PER_BLOCK - 1) // CUDA_THREADS_PER_BLOCK
+        cuda_kernel[blocks, CUDA_THREADS_PER_BLOCK, stream](*arrays)
+
+
+def _cuda_shade_kernel(which: int):
+    return None if not torch.cuda.is_available() else _load_march().make_cuda_shade_kernels()[which]
+
+
+def shade_forward(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: torch.Tensor,
+                  sparams: torch.Tensor, sflags: torch.Tensor, lights: torch.Tensor, rays: dict,
+                  outputs: dict) -> None:
+    """Runs stage 2's forward kernel: fills ``outputs`` (depth, normal, image, silhouette; empty
+    where the scene does not ask for them) from the traced ``rays`` (see renderer/stage2.py)."""
+    m = _load_march()
+    tensors = [values, params, iparams, sparams, sflags, lights, rays["hit"], rays["t"], rays["points"],
+               rays["directions"], rays["extreme"], rays["t_extreme"], rays["steps"], rays["cam_grid"],
+               rays["pixel_angle"], rays["eyes"], outputs["depth"], outputs["normal"], outputs["image"],
+               outputs["silhouette"]]
+    kernel = m.shade_rays_cpu if backend == "cpu" else _cuda_shade_kernel(0)
+    _launch(backend, kernel, kernel, tensors, rays["hit"].shape[0])
+
+
+def shade_backward(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: torch.Tensor,
+                   sparams: torch.Tensor, sflags: torch.Tensor, lights: torch.Tensor, rays: dict,
+                   grads: dict, grids: int) -> torch.Tensor:
+    """Runs stage 2's backward kernel: the gradient of the flat ``values`` from the outputs'
+    gradients ``grads`` (depth, normal, image, silhouette; empty where there is none)."""
+    m = _load_march()
+    r = rays["hit"].shape[0]
+    grad = torch.zeros_like(values)
+    common = [values, params, iparams, sparams, sflags, lights, rays["hit"], rays["points"], rays["directions"],
+              rays["extreme"], rays["t_extreme"], rays["steps"], rays["cam_grid"], rays["pixel_angle"],
+              rays["eyes"], grads["depth"], grads["normal"], grads["image"], grads["silhouette"]]
+    if backend == "cpu":
+        scratch = torch.empty(r, 8, dtype=values.dtype)
+        _launch("cpu", m.shade_rays_backward_cpu, None,
+                common + [grids, scratch, grad], r)
+    else:
+        _launch("cuda", None, _cuda_shade_kernel(1), common + [grad], r)
+    return grad

@@ -1,4 +1,6 @@
-"""The per-ray sphere-tracing march, written once for numba, and the kernels built from it.
+"""The renderer's per-ray code, written once for numba, and the kernels built from it: the
+sphere-tracing march (stage 1) and, at the end of the file, the differentiable stage 2 (forward
+and backward; see the "stage 2" section).
 
 The march of one ray is renderer/reference.py's, step for step, in the grid's dtype: box
 entry/exit by the slab test, the sign at the start point, sphere tracing with the hit threshold,
@@ -13,9 +15,9 @@ scalar code on arrays, so the same ``@njit`` functions compile for both targets
 (``make_cuda_kernel`` compiles the CUDA body lazily, so this module imports on machines without a
 GPU).
 
-Every function the kernels call lives in this one file on purpose: numba's on-disk cache checks
-only the source file of the function it caches, so a helper in another file could change without
-invalidating the cached kernels.
+Every function the kernels call lives in this one file on purpose, both stages' alike: numba's
+on-disk cache checks only the source file of the function it caches, so a helper in another file
+could change without invalidating the cached kernels.
 
 Arithmetic stays in the grid's dtype: float constants come from the ``params`` array (a Python
 float literal would promote float32 arithmetic to float64 and drift from the reference).
@@ -26,6 +28,9 @@ component, the threshold floor, the threshold scale, the fixed threshold and ``-
 ``iparams`` (int64): Nx, Ny, Nz, max_steps, inner_steps, whether the threshold is fixed.
 """
 from __future__ import annotations
+
+import math
+import threading
 
 import numpy as np
 from numba import njit, prange, types, uintp
@@ -457,3 +462,571 @@ def make_cuda_kernel():
         cuda = numba_cuda
         _cuda_kernel = numba_cuda.jit(cache=True)(cuda_march_body)
     return _cuda_kernel
+
+
+# ============================================================================ stage 2
+# The differentiable stage, per ray: renderer/render.py's ``shade_trace`` with the conservative hit
+# point of renderer/shading.py (p = s + f(s) v), its normals (central differences at the cell's
+# corners, trilinearly interpolated at p, normalised), Lambert shading and the soft silhouette,
+# forward (``shade_ray``) and backward (``shade_ray_backward``: the gradients of one ray's outputs
+# with respect to the SDF samples it read, then ``scatter_ray``: those gradients added into the
+# grid's gradient). The PyTorch code stays the specification (tests/renderer/test_stage2.py).
+#
+# ``sparams`` (grid dtype): ambient, silhouette sigma, the normalisation epsilon, the smallest
+# normal float, the camera light's intensity, 1 / (1 voxel) and 1 / (2 voxels) along x, y, z (the
+# spacings of one-sided and central differences), then the albedo (C) and the background (C).
+SP_AMBIENT, SP_SIGMA, SP_EPS, SP_TINY, SP_CAM_LIGHT, SP_INV_SPAN, SP_ALBEDO = 0, 1, 2, 3, 4, 5, 11
+# ``sflags`` (int64): which outputs to make, rays per camera, channels, the camera light and its
+# falloff, and (backward) which outputs brought a gradient.
+SF_DEPTH, SF_NORMAL, SF_SHADING, SF_SILHOUETTE, SF_PIXELS, SF_CHANNELS, SF_CAM_LIGHT, SF_CAM_FALLOFF = range(8)
+SF_GRAD_DEPTH, SF_GRAD_NORMAL, SF_GRAD_IMAGE, SF_GRAD_SILHOUETTE = 8, 9, 10, 11
+N_SFLAGS = 12
+# ``lights`` (L, 6) rows (grid dtype): kind (0 directional, 1 point), x, y, z (the unit direction
+# towards the light, or the position), intensity, falloff (point lights: 1 for 1/distance^2).
+LIGHT_POINT = 1
+
+
+def scatter_add(grad, index, value):
+    """``grad[index] += value``: a plain add in the CPU kernels (each thread owns the grids it
+    writes), an atomic one in the CUDA kernel (see ``make_cuda_kernel``). This Python body runs
+    only where numba's JIT is off (the CUDA simulator in the tests), under a lock."""
+    with _PY_SCATTER_LOCK:
+        grad[index] += value
+
+
+_PY_SCATTER_LOCK = threading.Lock()
+
+
+@overload(scatter_add, target="cpu")
+def _scatter_add_cpu(grad, index, value):
+    def impl(grad, index, value):
+        grad[index] += value
+
+    return impl
+
+
+@ray_helper
+def _inside(p, axis, params):
+    """Whether p lies in the box along ``axis`` (``_cell`` clamps it otherwise: then the sample does
+    not move with p, as torch.clamp's gradient, which is 0 outside the bounds)."""
+    u = (p - params[LO + axis]) / params[VOX + axis]
+    return u >= params[ZERO] and u <= params[TOP + axis]
+
+
+@ray_helper
+def _vertex(b, i, j, k, iparams):
+    return uintp(((b * iparams[NX] + i) * iparams[NY] + j) * iparams[NZ] + k)
+
+
+@ray_helper
+def _neighbours(c, n):
+    """The samples a central difference at index c reads along an axis of n samples (one-sided at the ends)."""
+    return (c - 1 if c > 0 else c), (c + 1 if c < n - 1 else c)
+
+
+@ray_helper
+def _corner_weight(c, wx, wy, wz, one):
+    """Trilinear weight of corner c (bits x, y, z) and its derivatives along x, y, z."""
+    x = wx if (c >> 2) & 1 else one - wx
+    y = wy if (c >> 1) & 1 else one - wy
+    z = wz if c & 1 else one - wz
+    sx = one if (c >> 2) & 1 else -one
+    sy = one if (c >> 1) & 1 else -one
+    sz = one if c & 1 else -one
+    return (x * y) * z, sx * (y * z), sy * (x * z), sz * (x * y)
+
+
+@ray_helper
+def _difference_ends(b, i, j, k, axis, params, iparams, sparams):
+    """The samples a central difference at vertex (i, j, k) of grid b along ``axis`` reads (one-sided
+    on the box faces): (index of the lower, index of the upper, 1 / their spacing)."""
+    if axis == 0:
+        lo, hi = _neighbours(i, iparams[NX])
+        a, z = _vertex(b, lo, j, k, iparams), _vertex(b, hi, j, k, iparams)
+    elif axis == 1:
+        lo, hi = _neighbours(j, iparams[NY])
+        a, z = _vertex(b, i, lo, k, iparams), _vertex(b, i, hi, k, iparams)
+    else:
+        lo, hi = _neighbours(k, iparams[NZ])
+        a, z = _vertex(b, i, j, lo, iparams), _vertex(b, i, j, hi, iparams)
+    return a, z, sparams[SP_INV_SPAN + axis + (3 if hi - lo == 2 else 0)]
+
+
+@ray_helper
+def _difference(values, b, i, j, k, axis, params, iparams, sparams):
+    """The central difference at vertex (i, j, k) of grid b along ``axis`` (SDFGrid.sample_gradient's)."""
+    a, z, inv = _difference_ends(b, i, j, k, axis, params, iparams, sparams)
+    return (values[z] - values[a]) * inv
+
+
+@ray_helper
+def _interior(i, j, k, iparams):
+    """Whether every central difference of cell (i, j, k) reads two samples inside the grid."""
+    return (i >= 1 and j >= 1 and k >= 1 and i <= iparams[NX] - 3 and j <= iparams[NY] - 3
+            and k <= iparams[NZ] - 3)
+
+
+@ray_helper
+def _corner_differences(values, b, i, j, k, c, interior, params, iparams, sparams):
+    """The central differences along x, y, z at corner c (bits x, y, z) of cell (i, j, k) of grid b.
+    In the grid's interior the samples are fixed offsets from the corner (most cells); on the box
+    faces they are one-sided (``_difference``)."""
+    ci, cj, ck = i + ((c >> 2) & 1), j + ((c >> 1) & 1), k + (c & 1)
+    if interior:
+        at = _vertex(b, ci, cj, ck, iparams)
+        sz = uintp(1)
+        sy = uintp(iparams[NZ])
+        sx = uintp(iparams[NY] * iparams[NZ])
+        return ((values[at + sx] - values[at - sx]) * sparams[SP_INV_SPAN + 3],
+                (values[at + sy] - values[at - sy]) * sparams[SP_INV_SPAN + 4],
+                (values[at + sz] - values[at - sz]) * sparams[SP_INV_SPAN + 5])
+    return (_difference(values, b, ci, cj, ck, 0, params, iparams, sparams),
+            _difference(values, b, ci, cj, ck, 1, params, iparams, sparams),
+            _difference(values, b, ci, cj, ck, 2, params, iparams, sparams))
+
+
+@ray_helper
+def stencil_gradient(values, b, i, j, k, wx, wy, wz, params, iparams, sparams):
+    """The SDF gradient at a point of cell (i, j, k) with fractions w: the central differences at
+    the cell's 8 corners, trilinearly interpolated (SDFGrid.sample_gradient)."""
+    one = params[ONE]
+    interior = _interior(i, j, k, iparams)
+    gx = gy = gz = params[ZERO]
+    for c in range(8):
+        w, _, _, _ = _corner_weight(c, wx, wy, wz, one)
+        dx, dy, dz = _corner_differences(values, b, i, j, k, c, interior, params, iparams, sparams)
+        gx += w * dx
+        gy += w * dy
+        gz += w * dz
+    return gx, gy, gz
+
+
+@ray_helper
+def _point_cell(px, py, pz, params):
+    i, wx = _cell(px, 0, params)
+    j, wy = _cell(py, 1, params)
+    k, wz = _cell(pz, 2, params)
+    return i, j, k, wx, wy, wz
+
+
+@ray_helper
+def _light_term(kind, lx, ly, lz, intensity, falloff, nx, ny, nz, px, py, pz, params, sparams):
+    """One light's diffuse term at a point with normal n (renderer/shading.py's shade_lambert)."""
+    zero = params[ZERO]
+    if kind != LIGHT_POINT:
+        c = (nx * lx + ny * ly) + nz * lz
+        return intensity * c if c > zero else zero
+    tx, ty, tz = lx - px, ly - py, lz - pz
+    d2 = (tx * tx + ty * ty) + tz * tz
+    if d2 < sparams[SP_TINY]:
+        d2 = sparams[SP_TINY]
+    c = ((nx * tx + ny * ty) + nz * tz) / math.sqrt(d2)
+    term = intensity * c if c > zero else zero
+    return term / d2 if falloff > zero else term
+
+
+@ray_helper
+def _light_backward(kind, lx, ly, lz, intensity, falloff, nx, ny, nz, px, py, pz, g, params, sparams):
+    """The gradient of ``g * _light_term`` with respect to the normal and the point (6 values).
+
+    As torch.clamp's, the gradient of the clamped cosine passes where the cosine is >= 0; a
+    distance clamped to the smallest float carries none.
+    """
+    zero = params[ZERO]
+    if kind != LIGHT_POINT:
+        c = (nx * lx + ny * ly) + nz * lz
+        if c < zero:
+            return zero, zero, zero, zero, zero, zero
+        return g * intensity * lx, g * intensity * ly, g * intensity * lz, zero, zero, zero
+    tx, ty, tz = lx - px, ly - py, lz - pz  # t = light - p
+    d2 = (tx * tx + ty * ty) + tz * tz
+    clamped = d2 < sparams[SP_TINY]
+    if clamped:
+        d2 = sparams[SP_TINY]
+    root = math.sqrt(d2)
+    c = ((nx * tx + ny * ty) + nz * tz) / root
+    if c < zero:
+        return zero, zero, zero, zero, zero, zero
+    # term = I c (/ d2 with falloff), c = (n . t) / sqrt(d2), d2 = |t|^2
+    g_c = g * intensity
+    g_d2 = zero
+    if falloff > zero:
+        g_c = g_c / d2
+        g_d2 = -(g * intensity * c) / (d2 * d2)
+    if clamped:
+        g_d2 = zero
+    else:
+        g_d2 = g_d2 - g_c * c / (d2 + d2)
+    two = params[ONE] + params[ONE]
+    gtx = g_c * nx / root + two * g_d2 * tx
+    gty = g_c * ny / root + two * g_d2 * ty
+    gtz = g_c * nz / root + two * g_d2 * tz
+    return g_c * tx / root, g_c * ty / root, g_c * tz / root, -gtx, -gty, -gtz
+
+
+@ray_function
+def radiance(nx, ny, nz, px, py, pz, ex, ey, ez, params, sparams, sflags, lights):
+    """Ambient plus every light's diffuse term (the scene's lights in order, then the camera light)."""
+    rad = sparams[SP_AMBIENT]
+    for l in range(lights.shape[0]):
+        rad += _light_term(int(lights[l, 0]), lights[l, 1], lights[l, 2], lights[l, 3], lights[l, 4],
+                           lights[l, 5], nx, ny, nz, px, py, pz, params, sparams)
+    if sflags[SF_CAM_LIGHT] != 0:
+        falloff = params[ONE] if sflags[SF_CAM_FALLOFF] != 0 else params[ZERO]
+        rad += _light_term(LIGHT_POINT, ex, ey, ez, sparams[SP_CAM_LIGHT], falloff, nx, ny, nz, px, py, pz,
+                           params, sparams)
+    return rad
+
+
+@ray_function
+def radiance_backward(nx, ny, nz, px, py, pz, ex, ey, ez, g, params, sparams, sflags, lights):
+    """The gradient of ``g * radiance`` with respect to the normal and the point (6 values)."""
+    zero = params[ZERO]
+    gnx = gny = gnz = gpx = gpy = gpz = zero
+    for l in range(lights.shape[0]):
+        a, b, c, d, e, f = _light_backward(int(lights[l, 0]), lights[l, 1], lights[l, 2], lights[l, 3], lights[l, 4],
+                                           lights[l, 5], nx, ny, nz, px, py, pz, g, params, sparams)
+        gnx, gny, gnz, gpx, gpy, gpz = gnx + a, gny + b, gnz + c, gpx + d, gpy + e, gpz + f
+    if sflags[SF_CAM_LIGHT] != 0:
+        falloff = params[ONE] if sflags[SF_CAM_FALLOFF] != 0 else zero
+        a, b, c, d, e, f = _light_backward(LIGHT_POINT, ex, ey, ez, sparams[SP_CAM_LIGHT], falloff, nx, ny, nz,
+                                           px, py, pz, g, params, sparams)
+        gnx, gny, gnz, gpx, gpy, gpz = gnx + a, gny + b, gnz + c, gpx + d, gpy + e, gpz + f
+    return gnx, gny, gnz, gpx, gpy, gpz
+
+
+@ray_helper
+def _normalise(gx, gy, gz, params, sparams):
+    """renderer/shading.py's surface_normals after the gradient: divided by its largest component
+    (exact, keeps the norm near 1), then by sqrt(|g|^2 + eps). Returns (n, scale, flat)."""
+    scale = _max(_max(abs(gx), abs(gy)), abs(gz))
+    if scale <= sparams[SP_TINY]:
+        return params[ZERO], params[ZERO], params[ZERO], scale, True
+    gx, gy, gz = gx / scale, gy / scale, gz / scale
+    root = math.sqrt((gx * gx + gy * gy) + gz * gz + sparams[SP_EPS])
+    return gx / root, gy / root, gz / root, scale, False
+
+
+@ray_helper
+def _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle):
+    """(coverage, -1 / (sigma * footprint)) of ray r: sigmoid(-f(x) / (sigma * footprint))."""
+    foot = t_extreme[r] * pixel_angle
+    if foot < params[FLOOR]:
+        foot = params[FLOOR]
+    slope = -params[ONE] / (sparams[SP_SIGMA] * foot)
+    f = sample_sdf(values, b, extreme[r, 0], extreme[r, 1], extreme[r, 2], params, iparams)
+    z = -f / (sparams[SP_SIGMA] * foot)
+    return params[ONE] / (params[ONE] + math.exp(-z)), slope
+
+
+@ray_helper
+def shade_ray(r, values, params, iparams, sparams, sflags, lights, hit, t, points, directions, extreme, t_extreme,
+              steps, cam_grid, pixel_angle, eyes, depth_out, normal_out, image_out, silhouette_out):
+    """Stage 2 of ray r: writes the outputs ``sflags`` asks for (depth 0, normal 0 and the
+    background where the ray missed; silhouette 0 where it never entered the box)."""
+    zero = params[ZERO]
+    cam = r // sflags[SF_PIXELS]
+    b = cam_grid[cam]
+    if sflags[SF_SILHOUETTE] != 0:
+        sil = zero
+        if steps[r] > 0:
+            sil, _ = _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle[cam])
+        silhouette_out[r] = sil
+    want_normal = sflags[SF_NORMAL] != 0
+    want_image = sflags[SF_SHADING] != 0
+    channels = sflags[SF_CHANNELS]
+    if hit[r] == 0:
+        if sflags[SF_DEPTH] != 0:
+            depth_out[r] = zero
+        if want_normal:
+            normal_out[r, 0] = zero
+            normal_out[r, 1] = zero
+            normal_out[r, 2] = zero
+        if want_image:
+            for ch in range(channels):
+                image_out[r, ch] = sparams[SP_ALBEDO + channels + ch]
+        return
+    if sflags[SF_DEPTH] == 0 and not want_normal and not want_image:
+        return
+    vx, vy, vz = directions[r, 0], directions[r, 1], directions[r, 2]
+    fs = sample_sdf(values, b, points[r, 0], points[r, 1], points[r, 2], params, iparams)
+    if sflags[SF_DEPTH] != 0:
+        depth_out[r] = t[r] + fs
+    if not (want_normal or want_image):
+        return
+    px, py, pz = points[r, 0] + fs * vx, points[r, 1] + fs * vy, points[r, 2] + fs * vz
+    i, j, k, wx, wy, wz = _point_cell(px, py, pz, params)
+    gx, gy, gz = stencil_gradient(values, b, i, j, k, wx, wy, wz, params, iparams, sparams)
+    nx, ny, nz, _, flat = _normalise(gx, gy, gz, params, sparams)
+    if flat:
+        nx, ny, nz = -vx, -vy, -vz
+    if want_normal:
+        normal_out[r, 0] = nx
+        normal_out[r, 1] = ny
+        normal_out[r, 2] = nz
+    if want_image:
+        rad = radiance(nx, ny, nz, px, py, pz, eyes[cam, 0], eyes[cam, 1], eyes[cam, 2], params, sparams, sflags,
+                       lights)
+        for ch in range(channels):
+            image_out[r, ch] = rad * sparams[SP_ALBEDO + ch]
+
+
+@ray_helper
+def shade_ray_backward(r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme,
+                       t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image,
+                       grad_silhouette):
+    """The gradient of ray r's stage 2 with respect to the SDF values it read, as the weights of
+    three samplings: returns (p (3), dL/df(s), dL/dg (3), dL/df(x)): the hit point, and the
+    gradients with respect to the SDF at the traced point s, the (unnormalised) gradient at p and
+    the SDF at the silhouette point x (``scatter_ray`` spreads them onto the samples)."""
+    zero = params[ZERO]
+    cam = r // sflags[SF_PIXELS]
+    b = cam_grid[cam]
+    g_sil = zero
+    if sflags[SF_SILHOUETTE] != 0 and sflags[SF_GRAD_SILHOUETTE] != 0 and steps[r] > 0:
+        sil, slope = _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle[cam])
+        g_sil = grad_silhouette[r] * (sil * (params[ONE] - sil)) * slope
+    px = py = pz = g_s = ggx = ggy = ggz = zero
+    want_normal = sflags[SF_NORMAL] != 0
+    want_image = sflags[SF_SHADING] != 0
+    if hit[r] == 0 or not (sflags[SF_DEPTH] != 0 or want_normal or want_image):
+        return px, py, pz, g_s, ggx, ggy, ggz, g_sil
+    if sflags[SF_DEPTH] != 0 and sflags[SF_GRAD_DEPTH] != 0:
+        g_s = grad_depth[r]
+    grads_normal = want_normal and sflags[SF_GRAD_NORMAL] != 0
+    grads_image = want_image and sflags[SF_GRAD_IMAGE] != 0
+    if not (grads_normal or grads_image):
+        return px, py, pz, g_s, ggx, ggy, ggz, g_sil
+    vx, vy, vz = directions[r, 0], directions[r, 1], directions[r, 2]
+    fs = sample_sdf(values, b, points[r, 0], points[r, 1], points[r, 2], params, iparams)
+    px, py, pz = points[r, 0] + fs * vx, points[r, 1] + fs * vy, points[r, 2] + fs * vz
+    i, j, k, wx, wy, wz = _point_cell(px, py, pz, params)
+    gx, gy, gz = stencil_gradient(values, b, i, j, k, wx, wy, wz, params, iparams, sparams)
+    nx, ny, nz, scale, flat = _normalise(gx, gy, gz, params, sparams)
+    if flat:  # the normal faces the camera, without gradient (point lights still see p move)
+        nx, ny, nz = -vx, -vy, -vz
+    gnx = gny = gnz = gpx = gpy = gpz = zero
+    if grads_normal:
+        gnx, gny, gnz = grad_normal[r, 0], grad_normal[r, 1], grad_normal[r, 2]
+    if grads_image:
+        channels = sflags[SF_CHANNELS]
+        g_rad = zero
+        for ch in range(channels):
+            g_rad += grad_image[r, ch] * sparams[SP_ALBEDO + ch]
+        a, bb, c, d, e, f = radiance_backward(nx, ny, nz, px, py, pz, eyes[cam, 0], eyes[cam, 1], eyes[cam, 2],
+                                              g_rad, params, sparams, sflags, lights)
+        gnx, gny, gnz, gpx, gpy, gpz = gnx + a, gny + bb, gnz + c, gpx + d, gpy + e, gpz + f
+    if flat:
+        g_s += (gpx * vx + gpy * vy) + gpz * vz
+        return px, py, pz, g_s, ggx, ggy, ggz, g_sil
+    # n = h / sqrt(|h|^2 + eps) with h = g / scale (scale held fixed)
+    hx, hy, hz = gx / scale, gy / scale, gz / scale
+    root = math.sqrt((hx * hx + hy * hy) + hz * hz + sparams[SP_EPS])
+    proj = ((hx * gnx + hy * gny) + hz * gnz) / (root * root * root)
+    ggx = (gnx / root - hx * proj) / scale
+    ggy = (gny / root - hy * proj) / scale
+    ggz = (gnz / root - hz * proj) / scale
+    # the gradient's dependence on p, through the trilinear weights
+    one = params[ONE]
+    interior = _interior(i, j, k, iparams)
+    gwx = gwy = gwz = zero
+    for c in range(8):
+        _, dwx, dwy, dwz = _corner_weight(c, wx, wy, wz, one)
+        dx, dy, dz = _corner_differences(values, b, i, j, k, c, interior, params, iparams, sparams)
+        e = (dx * ggx + dy * ggy) + dz * ggz
+        gwx += dwx * e
+        gwy += dwy * e
+        gwz += dwz * e
+    if _inside(px, 0, params):
+        gpx += gwx / params[VOX]
+    if _inside(py, 1, params):
+        gpy += gwy / params[VOX + 1]
+    if _inside(pz, 2, params):
+        gpz += gwz / params[VOX + 2]
+    g_s += (gpx * vx + gpy * vy) + gpz * vz  # p = s + f(s) v
+    return px, py, pz, g_s, ggx, ggy, ggz, g_sil
+
+
+@ray_helper
+def _scatter_trilinear(grad, b, px, py, pz, g, params, iparams):
+    """Adds g times the trilinear weights at p onto the 8 samples around it."""
+    c, dz, dy, dx, wx, wy, wz = cell_corner(b, px, py, pz, params, iparams)
+    one = params[ONE]
+    for corner in range(8):
+        w, _, _, _ = _corner_weight(corner, wx, wy, wz, one)
+        index = c
+        if (corner >> 2) & 1:
+            index += dx
+        if (corner >> 1) & 1:
+            index += dy
+        if corner & 1:
+            index += dz
+        scatter_add(grad, index, w * g)
+
+
+@ray_helper
+def scatter_ray(r, grad, params, iparams, sparams, sflags, hit, points, extreme, steps, cam_grid,
+                px, py, pz, g_s, ggx, ggy, ggz, g_sil):
+    """Adds ray r's gradients (from ``shade_ray_backward``) onto the grid samples it read."""
+    zero = params[ZERO]
+    b = cam_grid[r // sflags[SF_PIXELS]]
+    if g_sil != zero:
+        _scatter_trilinear(grad, b, extreme[r, 0], extreme[r, 1], extreme[r, 2], g_sil, params, iparams)
+    if hit[r] == 0:
+        return
+    if g_s != zero:
+        _scatter_trilinear(grad, b, points[r, 0], points[r, 1], points[r, 2], g_s, params, iparams)
+    if ggx == zero and ggy == zero and ggz == zero:
+        return
+    i, j, k, wx, wy, wz = _point_cell(px, py, pz, params)
+    one = params[ONE]
+    interior = _interior(i, j, k, iparams)
+    sz = uintp(1)
+    sy = uintp(iparams[NZ])
+    sx = uintp(iparams[NY] * iparams[NZ])
+    for c in range(8):
+        w, _, _, _ = _corner_weight(c, wx, wy, wz, one)
+        ci, cj, ck = i + ((c >> 2) & 1), j + ((c >> 1) & 1), k + (c & 1)
+        if interior:
+            at = _vertex(b, ci, cj, ck, iparams)
+            gx = w * ggx * sparams[SP_INV_SPAN + 3]
+            gy = w * ggy * sparams[SP_INV_SPAN + 4]
+            gz = w * ggz * sparams[SP_INV_SPAN + 5]
+            scatter_add(grad, at + sx, gx)
+            scatter_add(grad, at - sx, -gx)
+            scatter_add(grad, at + sy, gy)
+            scatter_add(grad, at - sy, -gy)
+            scatter_add(grad, at + sz, gz)
+            scatter_add(grad, at - sz, -gz)
+            continue
+        for axis in range(3):
+            ga = ggx if axis == 0 else (ggy if axis == 1 else ggz)
+            lo, hi, inv = _difference_ends(b, ci, cj, ck, axis, params, iparams, sparams)
+            scatter_add(grad, hi, w * ga * inv)
+            scatter_add(grad, lo, -(w * ga * inv))
+
+
+@ray_function
+def shade_block(start, end, values, params, iparams, sparams, sflags, lights, hit, t, points, directions, extreme,
+                t_extreme, steps, cam_grid, pixel_angle, eyes, depth_out, normal_out, image_out, silhouette_out):
+    """``shade_ray`` for rays start..end-1: one call per block of the CPU kernel (a call per ray would
+    pass every array's descriptor each time)."""
+    for r in range(start, end):
+        shade_ray(r, values, params, iparams, sparams, sflags, lights, hit, t, points, directions, extreme,
+                  t_extreme, steps, cam_grid, pixel_angle, eyes, depth_out, normal_out, image_out, silhouette_out)
+
+
+@ray_function
+def shade_backward_block(start, end, values, params, iparams, sparams, sflags, lights, hit, points, directions,
+                         extreme, t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal,
+                         grad_image, grad_silhouette, scratch):
+    """``shade_ray_backward`` for rays start..end-1, its 8 results per ray into ``scratch``."""
+    for r in range(start, end):
+        px, py, pz, g_s, ggx, ggy, ggz, g_sil = shade_ray_backward(
+            r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme, t_extreme,
+            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+        scratch[r, 0] = px
+        scratch[r, 1] = py
+        scratch[r, 2] = pz
+        scratch[r, 3] = g_s
+        scratch[r, 4] = ggx
+        scratch[r, 5] = ggy
+        scratch[r, 6] = ggz
+        scratch[r, 7] = g_sil
+
+
+@ray_function
+def scatter_block(start, end, grad, params, iparams, sparams, sflags, hit, points, extreme, steps, cam_grid,
+                  scratch):
+    """``scatter_ray`` for rays start..end-1 from their ``scratch`` rows."""
+    for r in range(start, end):
+        scatter_ray(r, grad, params, iparams, sparams, sflags, hit, points, extreme, steps, cam_grid,
+                    scratch[r, 0], scratch[r, 1], scratch[r, 2], scratch[r, 3], scratch[r, 4], scratch[r, 5],
+                    scratch[r, 6], scratch[r, 7])
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def shade_rays_cpu(values, params, iparams, sparams, sflags, lights, hit, t, points, directions, extreme,
+                   t_extreme, steps, cam_grid, pixel_angle, eyes, depth_out, normal_out, image_out, silhouette_out):
+    """CPU kernel of stage 2's forward: blocks of BLOCK rays over ``prange``."""
+    n = hit.shape[0]
+    for blk in prange((n + BLOCK - 1) // BLOCK):
+        shade_block(blk * BLOCK, min(n, (blk + 1) * BLOCK), values, params, iparams, sparams, sflags, lights, hit,
+                    t, points, directions, extreme, t_extreme, steps, cam_grid, pixel_angle, eyes, depth_out,
+                    normal_out, image_out, silhouette_out)
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
+def shade_rays_backward_cpu(values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme,
+                            t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image,
+                            grad_silhouette, grids, scratch, grad):
+    """CPU kernel of stage 2's backward. First every ray's gradients (``shade_ray_backward``, blocks
+    of rays in parallel) into ``scratch`` (R, 8); then they are added into ``grad`` (the flat
+    gradient of the values), in parallel over the ``grids`` grids: the rays of grid g are a
+    contiguous range (consecutive cameras see the same grid), so no two threads write one sample."""
+    n = hit.shape[0]
+    for blk in prange((n + BLOCK - 1) // BLOCK):
+        shade_backward_block(blk * BLOCK, min(n, (blk + 1) * BLOCK), values, params, iparams, sparams, sflags,
+                             lights, hit, points, directions, extreme, t_extreme, steps, cam_grid, pixel_angle,
+                             eyes, grad_depth, grad_normal, grad_image, grad_silhouette, scratch)
+    per_grid = n // grids
+    for g in prange(grids):
+        scatter_block(g * per_grid, (g + 1) * per_grid, grad, params, iparams, sparams, sflags, hit, points,
+                      extreme, steps, cam_grid, scratch)
+
+
+def cuda_shade_body(values, params, iparams, sparams, sflags, lights, hit, t, points, directions, extreme,
+                    t_extreme, steps, cam_grid, pixel_angle, eyes, depth_out, normal_out, image_out, silhouette_out):
+    """CUDA kernel body of stage 2's forward (compiled by ``make_cuda_shade_kernels``): one ray per thread."""
+    r = cuda.grid(1)
+    if r < hit.shape[0]:
+        shade_ray(r, values, params, iparams, sparams, sflags, lights, hit, t, points, directions, extreme,
+                  t_extreme, steps, cam_grid, pixel_angle, eyes, depth_out, normal_out, image_out, silhouette_out)
+
+
+def cuda_shade_backward_body(values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme,
+                             t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image,
+                             grad_silhouette, grad):
+    """CUDA kernel body of stage 2's backward: one ray per thread, its gradients added atomically."""
+    r = cuda.grid(1)
+    if r < hit.shape[0]:
+        px, py, pz, g_s, ggx, ggy, ggz, g_sil = shade_ray_backward(
+            r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme, t_extreme,
+            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+        scatter_ray(r, grad, params, iparams, sparams, sflags, hit, points, extreme, steps, cam_grid, px, py, pz, g_s,
+                    ggx, ggy, ggz, g_sil)
+
+
+_cuda_shade_kernels = None
+
+
+def make_cuda_shade_kernels():
+    """The CUDA kernels of stage 2 (forward, backward), compiled lazily once; ``scatter_add`` is an
+    atomic add there."""
+    global cuda, _cuda_shade_kernels
+    if _cuda_shade_kernels is None:
+        from numba import cuda as numba_cuda
+
+        cuda = numba_cuda
+        _register_cuda_scatter_add(numba_cuda)
+        _cuda_shade_kernels = (numba_cuda.jit(cache=True)(cuda_shade_body),
+                               numba_cuda.jit(cache=True)(cuda_shade_backward_body))
+    return _cuda_shade_kernels
+
+
+_cuda_scatter_registered = False
+
+
+def _register_cuda_scatter_add(numba_cuda):
+    global _cuda_scatter_registered
+    if _cuda_scatter_registered:
+        return
+
+    @overload(scatter_add, target="cuda")
+    def _scatter_add_cuda(grad, index, value):
+        def impl(grad, index, value):
+            numba_cuda.atomic.add(grad, index, value)
+
+        return impl
+
+    _cuda_scatter_registered = True

@@ -451,14 +451,14 @@ def test_kernel_reads_the_tensors_without_copies(dtype, monkeypatch):
     o, d, gi, pix = camera_rays(grid, _look([[0.0, 0.0, 3.0]], size=4, dtype=dtype))
     rays = (o.contiguous(), d, gi, pix)
     seen = {}
-    launch = kernels._launch_cpu
+    launch = kernels._launch
 
-    def spy(tensors):
+    def spy(backend, cpu_kernel, cuda_kernel, tensors, rays):
         seen["arrays"] = [x.numpy() for x in tensors]
         seen["ptrs"] = [x.data_ptr() for x in tensors]
-        launch(tensors)
+        launch(backend, cpu_kernel, cuda_kernel, tensors, rays)
 
-    monkeypatch.setattr(kernels, "_launch_cpu", spy)
+    monkeypatch.setattr(kernels, "_launch", spy)
     out = kernels.march("cpu", grid, *rays, TraceSettings())
     values, _, _, origins, directions, grid_index, pixel_angle = seen["ptrs"][:7]
     assert values == grid.values.data_ptr()
@@ -570,10 +570,9 @@ def test_cuda_kernel_body_in_the_cuda_simulator():
     assert res["t_err"] < 1e-4 * 2 / 15 and res["ext_err"] < 1e-4 * 2 / 15, res
 
 
-@pytest.mark.parametrize("dtype", ["float32", "float64"])
-def test_cuda_kernel_compiles_to_ptx(dtype, monkeypatch):
-    """Compiles the CUDA kernel for sm_80 without a GPU (needs numba's CUDA target and libNVVM)."""
-    from numba import cuda, types
+def device_less_cuda(monkeypatch):
+    """numba's CUDA target set up to compile PTX without a GPU (skips the test where it cannot)."""
+    from numba import cuda
 
     if getattr(cuda, "implementation", "") != "Built-in":
         pytest.skip("the device-less compile below relies on numba's built-in CUDA target")
@@ -587,6 +586,15 @@ def test_cuda_kernel_compiles_to_ptx(dtype, monkeypatch):
         compute_capability = (8, 0)
 
     monkeypatch.setattr(cuda_dispatcher, "get_current_device", lambda: _Device())
+    return cuda
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_cuda_kernel_compiles_to_ptx(dtype, monkeypatch):
+    """Compiles the CUDA kernel for sm_80 without a GPU (needs numba's CUDA target and libNVVM)."""
+    from numba import types
+
+    cuda = device_less_cuda(monkeypatch)
     from renderer.kernels import raymarch
 
     raymarch.make_cuda_kernel()  # binds the module's `cuda` name used by the body

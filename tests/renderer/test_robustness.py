@@ -177,6 +177,7 @@ def test_bad_settings_and_scene_raise():
 
 # ---------------------------------------------------------------- passes
 def test_silhouette_only_builds_no_hit_points_normals_or_lights(monkeypatch):
+    """The PyTorch stage 2 (the fused one: tests/renderer/test_stage2.py)."""
     calls = {"hit": 0, "normal": 0, "light": 0}
 
     def counting(name, fn):
@@ -190,14 +191,14 @@ def test_silhouette_only_builds_no_hit_points_normals_or_lights(monkeypatch):
     monkeypatch.setattr(render_module, "shade_lambert", counting("light", render_module.shade_lambert))
     grid = SDFGrid.from_function(sphere_sdf(0.5), 16)
     cams = Cameras.look_at([[0.0, 0.0, 3.0]], image_size=16)
-    out = render(grid, cams, Scene(effects=("silhouette",)))
+    out = render(grid, cams, Scene(effects=("silhouette",)), backend="reference")
     assert calls == {"hit": 0, "normal": 0, "light": 0}
     assert out.depth is None and out.normal is None and out.image is None
-    render(grid, cams, Scene(effects=("depth",)))
+    render(grid, cams, Scene(effects=("depth",)), backend="reference")
     assert calls == {"hit": 1, "normal": 0, "light": 0}
-    render(grid, cams, Scene(effects=("normal",)))
+    render(grid, cams, Scene(effects=("normal",)), backend="reference")
     assert calls == {"hit": 2, "normal": 1, "light": 0}
-    render(grid, cams, ALL)
+    render(grid, cams, ALL, backend="reference")
     assert calls == {"hit": 3, "normal": 2, "light": 1}
 
 
