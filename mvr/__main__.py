@@ -45,7 +45,7 @@ def run(cfg: DictConfig) -> float:
     from .runtime import configure_runtime
 
     kwargs = reconstruct_kwargs(cfg)
-    threads = config_value(cfg, "runtime.threads")
+    threads = config_value(cfg, "runtime.threads")  # null: every core (mvr.runtime.available_cores)
     configure_runtime(None if threads is None else config_int(cfg, "runtime.threads", minimum=1),
                       config_bool(cfg, "runtime.tune_malloc"), config_bool(cfg, "runtime.flush_denormal"))
     result = reconstruct(str(config_value(cfg, "target")), str(config_value(cfg, "out_dir")), **kwargs)

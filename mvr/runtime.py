@@ -18,35 +18,47 @@ measured on one such machine: docs/measurements.md):
 """
 from __future__ import annotations
 
+import os
 from typing import Optional
 
 import torch
 
 from sdfcommon.host_memory import tune_allocator
 
-def configure_runtime(threads: Optional[int] = 1, tune_malloc: bool = True, flush_denormal: bool = True) -> dict:
-    """Sets torch's and numba's thread counts (None: leave them) and, optionally, the allocator and
-    the flushing of denormal floats (this thread).
+def available_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask; ``os.cpu_count()`` where the
+    platform has none)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def configure_runtime(threads: Optional[int] = None, tune_malloc: bool = True, flush_denormal: bool = True) -> dict:
+    """Sets torch's and numba's thread counts (None: every core this process may use,
+    ``available_cores``) and, optionally, the allocator and the flushing of denormal floats (this
+    thread).
 
     Returns:
-        what was set: {"threads": int | None, "malloc_tuned": bool, "flush_denormal": bool}.
+        what was set: {"threads": int, "malloc_tuned": bool, "flush_denormal": bool}.
     """
-    if threads is not None:
-        if not isinstance(threads, int) or threads < 1:
-            raise ValueError(f"threads must be a positive int or None, got {threads!r}")
-        torch.set_num_threads(threads)
-        try:
-            import numba
+    if threads is None:
+        threads = available_cores()
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"threads must be a positive int or None (all cores), got {threads!r}")
+    torch.set_num_threads(threads)
+    try:
+        import numba
 
-            # Setting numba's thread count starts its thread pool: let the renderer's kernels start
-            # it first, with the pool they choose (see renderer/kernels: GNU OpenMP's spinning
-            # workers slowed the PyTorch code after each march on shared machines).
-            import renderer
+        # Setting numba's thread count starts its thread pool: let the renderer's kernels start
+        # it first, with the pool they choose (see renderer/kernels: GNU OpenMP's spinning
+        # workers slowed the PyTorch code after each march on shared machines).
+        import renderer
 
-            renderer.backend_available("cpu")
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-        except (ImportError, ValueError):
-            pass
+        renderer.backend_available("cpu")
+        numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    except (ImportError, ValueError):
+        pass
     tuned = tune_allocator() if tune_malloc else False
     flushed = bool(torch.set_flush_denormal(True)) if flush_denormal else False
     return {"threads": threads, "malloc_tuned": tuned, "flush_denormal": flushed}

@@ -81,6 +81,15 @@ def rounded_box_sdf(p: torch.Tensor, half=(1.0, 0.6, 0.45), radius: float = 0.12
     return outside + inside - radius
 
 
+def dented_box_sdf(p: torch.Tensor) -> torch.Tensor:
+    """A rounded box (half sides 1, 0.6, 1) with a spherical dent 0.4 deep, 0.63 in radius, in its
+    top face (+y): a concavity no silhouette reveals, only shading (an implicit function with the
+    right zero set, exact outside the dent)."""
+    dent = sphere_sdf(_shifted(p, y=0.9), 0.7)
+    return torch.maximum(rounded_box_sdf(p, (1.0, 0.6, 1.0), 0.1), -dent)
+
+
+
 @dataclass(frozen=True)
 class Shape:
     """A built-in shape: ``fn`` maps (..., 3) points to (...) values, negative inside; the zero set
@@ -104,4 +113,6 @@ SHAPES: dict[str, Shape] = {
                   "bunny-like blob: body, head, ears, tail"),
     "rounded_box": Shape(rounded_box_sdf, (-1.1, -0.7, -0.55), (1.1, 0.7, 0.55), 0,
                          "box 2 x 1.2 x 0.9 with edges rounded by 0.12"),
+    "dented_box": Shape(dented_box_sdf, (-1.1, -0.7, -1.1), (1.1, 0.7, 1.1), 0,
+                        "box 2 x 1.2 x 2 with a dent 0.4 deep in its top face (a concavity only shading shows)"),
 }

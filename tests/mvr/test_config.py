@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import pytest
+import torch
 from hydra.errors import ConfigCompositionException
 
 from mvr import (EvalSettings, GridSettings, NoiseSettings, OptimSettings, RigSettings, Schedule,
@@ -9,6 +10,10 @@ from mvr import (EvalSettings, GridSettings, NoiseSettings, OptimSettings, RigSe
 from mvr.__main__ import compose_config, reconstruct_kwargs
 from mvr.reconstruct import default_scene
 from renderer import Scene, TraceSettings
+
+# The head light without falloff of mvr/preset=paper (issue 4's settings).
+PAPER_SCENE = Scene(effects=("silhouette", "shading"), lights=(), camera_light=0.8, camera_light_falloff=False,
+                    ambient=0.2, albedo=(1.0,), background=0.0)
 
 
 def test_defaults_instantiate():
@@ -62,3 +67,30 @@ def test_configure_runtime_starts_the_renderers_thread_pool():
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
     assert json.loads(out.stdout.strip().splitlines()[-1]) == "workqueue"
+
+
+def test_paper_preset_restores_the_papers_settings():
+    """mvr/preset=paper is the baseline the real-scan benchmark measures beside the defaults."""
+    paper = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "mvr/preset=paper"]))
+    assert paper["trace"] == TraceSettings(threshold_scale=0.5, inner_depth=8.0)
+    assert paper["schedule"].grid_resolutions() == [8, 16, 32, 64]
+    assert paper["scene"] == PAPER_SCENE
+    # A command-line override still wins over the preset.
+    over = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "mvr/preset=paper",
+                                              "trace.threshold_scale=0.3"]))
+    assert over["trace"].threshold_scale == 0.3
+
+
+def test_threads_default_to_every_core():
+    from mvr.runtime import available_cores, configure_runtime
+
+    assert compose_config(["target=torus"]).runtime.threads is None
+    assert available_cores() >= 1
+    before = torch.get_num_threads()
+    try:
+        assert configure_runtime(threads=None, tune_malloc=False, flush_denormal=False)["threads"] == available_cores()
+        assert torch.get_num_threads() == available_cores()
+    finally:
+        torch.set_num_threads(before)
+    with pytest.raises(ValueError, match="threads"):
+        configure_runtime(threads=0)
