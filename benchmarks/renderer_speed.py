@@ -1,17 +1,13 @@
-"""Renderer speed: the PyTorch reference march against the fused kernel, alone and inside a full
-differentiable render (forward + backward), in one run.
+"""Renderer speed: the PyTorch reference pipeline against the fused kernels (the march alone, and a
+full differentiable render, forward + backward), in one run.
 
     python -m benchmarks.renderer_speed            # full run, writes docs/bench_renderer.md
     python -m benchmarks.renderer_speed --quick    # fewer repeats (a smoke run)
-    python -m benchmarks.renderer_speed --torch-threads 0 --out docs/bench_renderer_torch_all.md
+    python -m benchmarks.renderer_speed --threads 1 --out docs/bench_renderer_1thread.md
     python -m benchmarks.renderer_speed --device cuda   # on a GPU: writes docs/bench_renderer_cuda.md
 
-Threads: numba uses every core (the fused kernel is parallel); torch uses one thread unless
-``--torch-threads`` says otherwise (0: torch's default, every core). On a machine whose cores are
-shared with other jobs, torch's OpenMP workers busy-wait for each other, which makes the reference
-march (a long chain of PyTorch ops) many times slower and its timings erratic
-(docs/bench_renderer_torch_all.md); one thread is the reference's fastest and steadiest setting
-there (and what ``python -m mvr`` uses), so the comparison does not flatter the fused kernel.
+Threads: as users get them unless told otherwise: torch and numba each use every core (their
+defaults). ``--threads N`` sets both; ``--torch-threads`` torch's alone (0: its default).
 
 Scenes: B grids of 64^3 (a torus, its radii varied a little per grid), one camera per grid at
 distance 2.5 from a random direction, 40 degree field of view (the torus fills part of the
@@ -20,8 +16,11 @@ image), the default ``renderer.Scene()`` (silhouette, depth, normals, Lambert sh
 
 What is timed (medians over the repeats, after one warm-up that also loads the compiled kernels):
 - march: ``renderer.sphere_trace`` (ray generation + the no-gradient march) per backend;
-- render f+b: ``renderer.render`` + a scalar loss over image, silhouette and depth + ``backward()``
-  into the grid values, once with each march.
+- render f+b: a render + a scalar loss over image, silhouette and depth + ``backward()`` into the
+  grid values, three ways: ``render(backend="reference")`` (the PyTorch march and stage 2: the
+  specification), the fused march with the PyTorch stage 2 (``sphere_trace`` + ``shade_trace(...,
+  stage2="reference")``: the pipeline before stage 2 was fused), and ``render`` with the fused
+  kernels of both stages (the default).
 
 ``--device cuda`` times the same calls on the GPU (the reference march on CUDA tensors against the
 fused CUDA kernel, each call ended by ``torch.cuda.synchronize()``), adds the fused CPU march of
@@ -52,7 +51,7 @@ from pathlib import Path
 import torch
 
 import renderer
-from renderer import Cameras, Scene, SDFGrid, render, sphere_trace
+from renderer import Cameras, Scene, SDFGrid, render, shade_trace, sphere_trace
 from sdfcommon.outputs import write_text
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,10 +81,17 @@ def fused_backend(device: torch.device) -> str:
 
 
 def march_backends(device: torch.device) -> dict[str, str]:
-    """The march backend behind each column label ("reference", "fused") on ``device``. On CUDA the
-    fused CPU march of the same host is timed too ("host", in ``time_config``), for the CUDA-vs-CPU
-    ratio."""
+    """The march backend behind each march column label ("reference", "fused") on ``device``. On
+    CUDA the fused CPU march of the same host is timed too ("host", in ``time_config``), for the
+    CUDA-vs-CPU ratio."""
     return {"reference": "reference", "fused": fused_backend(device)}
+
+
+def render_variants(device: torch.device) -> dict[str, tuple[str, str]]:
+    """The (march backend, stage 2) behind each render column label: the reference pipeline, the
+    fused march with the PyTorch stage 2, and both stages fused."""
+    fused = fused_backend(device)
+    return {"reference": ("reference", "auto"), "fused_march": (fused, "reference"), "fused": (fused, "auto")}
 
 
 def torus_grids(batch: int, n: int, seed: int = 0) -> torch.Tensor:
@@ -110,10 +116,15 @@ def scene_for(cfg: Config, seed: int = 0) -> tuple[torch.Tensor, Cameras]:
     return torus_grids(cfg.batch, cfg.grid, seed), cams
 
 
-def forward_backward(values: torch.Tensor, cams: Cameras, backend: str) -> None:
-    """One differentiable render of every camera and the backward pass into the grid values."""
+def forward_backward(values: torch.Tensor, cams: Cameras, backend: str, stage2: str = "auto") -> None:
+    """One differentiable render of every camera and the backward pass into the grid values
+    (``render``; with ``stage2`` other than "auto", its two stages called with that stage 2)."""
     v = values.detach().requires_grad_(True)
-    out = render(SDFGrid(v), cams, Scene(), backend=backend)
+    grid = SDFGrid(v)
+    if stage2 == "auto":
+        out = render(grid, cams, Scene(), backend=backend)
+    else:
+        out = shade_trace(grid, cams, sphere_trace(grid, cams, backend=backend), Scene(), stage2=stage2)
     loss = out.image.mean() + out.silhouette.mean() + out.depth.mean()
     loss.backward()
     if v.is_cuda:
@@ -150,18 +161,21 @@ def median_times_ms(fns: dict, repeats: int) -> dict[str, float]:
 
 
 def time_config(cfg: Config, repeats: int, device: torch.device = torch.device("cpu")) -> dict[str, float]:
-    """Medians (ms) of the march and of forward + backward per column of ``march_backends`` on ``device``
-    (on CUDA also the fused CPU march of the host, "host"), with hit fraction and mean steps."""
+    """Medians (ms) of the march per ``march_backends`` column and of forward + backward per
+    ``render_variants`` column on ``device`` (on CUDA also the host's fused CPU kernels, "host"),
+    with hit fraction and mean steps."""
     values, cams = scene_for(cfg)
-    runs = {label: (device, backend) for label, backend in march_backends(device).items()}
-    if device.type == "cuda":
-        runs["host"] = (torch.device("cpu"), "cpu")
     fns = {}
-    for label, (dev, backend) in runs.items():
-        v = values.to(dev)
-        grid = SDFGrid(v)
+    for label, backend in march_backends(device).items():
+        grid = SDFGrid(values.to(device))
         fns[f"march_{label}"] = lambda grid=grid, backend=backend: trace_synced(grid, cams, backend)
-        fns[f"render_{label}"] = lambda v=v, backend=backend: forward_backward(v, cams, backend)
+    for label, (backend, stage2) in render_variants(device).items():
+        v = values.to(device)
+        fns[f"render_{label}"] = lambda v=v, b=backend, s2=stage2: forward_backward(v, cams, b, s2)
+    if device.type == "cuda":  # the host's fused CPU kernels on the same scenes
+        grid = SDFGrid(values)
+        fns["march_host"] = lambda: trace_synced(grid, cams, "cpu")
+        fns["render_host"] = lambda: forward_backward(values, cams, "cpu")
     row = median_times_ms(fns, repeats)
     trace = sphere_trace(SDFGrid(values.to(device)), cams, backend=fused_backend(device))
     row["hit_fraction"] = float(trace.hit.float().mean())
@@ -169,16 +183,16 @@ def time_config(cfg: Config, repeats: int, device: torch.device = torch.device("
     return row
 
 
-def measure_cuda_memory(cfg: Config, backend: str, device: torch.device) -> dict[str, float | str]:
+def measure_cuda_memory(cfg: Config, backend: str, stage2: str, device: torch.device) -> dict[str, float | str]:
     """Peak extra GPU memory (MiB) of one forward + backward: what the caching allocator handed out
     beyond what was allocated before it."""
     values, cams = scene_for(cfg)
     values = values.to(device)
-    forward_backward(values, cams, backend)  # warm-up: kernels loaded, workspaces made
+    forward_backward(values, cams, backend, stage2)  # warm-up: kernels loaded, workspaces made
     torch.cuda.synchronize(device)
     torch.cuda.reset_peak_memory_stats(device)
     before = torch.cuda.memory_allocated(device)
-    forward_backward(values, cams, backend)
+    forward_backward(values, cams, backend, stage2)
     return {"peak_mib": (torch.cuda.max_memory_allocated(device) - before) / 2**20,
             "method": "torch.cuda.max_memory_allocated"}
 
@@ -192,33 +206,33 @@ def _status_kib(field: str) -> int:
     raise KeyError(field)
 
 
-def measure_memory(cfg: Config, backend: str) -> dict[str, float | str]:
+def measure_memory(cfg: Config, backend: str, stage2: str) -> dict[str, float | str]:
     """Peak extra resident memory (MiB) of one forward + backward, in this (fresh) process."""
     import gc
     import resource
 
     values, cams = scene_for(cfg)
-    forward_backward(values[:1].clone(), Cameras.look_at([[0.0, 0.0, 2.5]], image_size=8), backend)
+    forward_backward(values[:1].clone(), Cameras.look_at([[0.0, 0.0, 2.5]], image_size=8), backend, stage2)
     gc.collect()
     try:
         with open("/proc/self/clear_refs", "w") as fh:
             fh.write("5")  # resets VmHWM to the current RSS
         before = _status_kib("VmRSS")
-        forward_backward(values, cams, backend)
+        forward_backward(values, cams, backend, stage2)
         peak = _status_kib("VmHWM")
         method = "VmHWM"
     except OSError:
         before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        forward_backward(values, cams, backend)
+        forward_backward(values, cams, backend, stage2)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         method = "ru_maxrss"
     return {"peak_mib": (peak - before) / 1024.0, "method": method}
 
 
-def memory_in_subprocess(cfg: Config, backend: str, threads: int | None,
+def memory_in_subprocess(cfg: Config, backend: str, stage2: str, threads: int | None,
                          torch_threads: int | None = None) -> dict[str, float | str]:
     cmd = [sys.executable, "-m", "benchmarks.renderer_speed", "--memory-probe", f"{cfg.image},{cfg.batch},{cfg.grid}",
-           backend]
+           f"{backend},{stage2}"]
     if threads:
         cmd += ["--threads", str(threads)]
     if torch_threads is not None:
@@ -239,42 +253,49 @@ def _march_cells(cfg: Config, r: dict, digits: int) -> str:
 def table(rows: list[tuple[Config, dict]]) -> str:
     """The wall-clock table (medians), with speed-ups and peak memory."""
     head = ("| config | rays | hits | march ref (ms) | march fused (ms) | march speed-up | fused rays/s "
-            "| f+b with ref march (ms) | f+b with fused march (ms) | f+b speed-up "
-            "| peak mem f+b ref (MiB) | peak mem f+b fused (MiB) |")
+            "| f+b reference (ms) | f+b fused march + PyTorch stage 2 (ms) | f+b fused (ms) | fused per image (ms) "
+            "| f+b speed-up vs reference | fused f+b / fused march "
+            "| peak mem f+b ref / fused march + PyTorch stage 2 / fused (MiB) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
-            _march_cells(cfg, r, 1) + f" | {r['render_reference']:.1f} | {r['render_fused']:.1f} "
-            f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['mem_reference']:.0f} | {r['mem_fused']:.0f} |")
+            _march_cells(cfg, r, 1) + f" | {r['render_reference']:.1f} | {r['render_fused_march']:.1f} "
+            f"| {r['render_fused']:.1f} | {r['render_fused'] / cfg.batch:.2f} "
+            f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['render_fused'] / r['march_fused']:.2f} "
+            f"| {r['mem_reference']:.0f} / {r['mem_fused_march']:.0f} / {r['mem_fused']:.0f} |")
     return "\n".join(lines)
 
 
 def cuda_table(rows: list[tuple[Config, dict]]) -> str:
-    """The GPU table: reference and fused march on CUDA, and the host's fused CPU march."""
+    """The GPU table: reference and fused kernels on CUDA, and the host's fused CPU kernels."""
     head = ("| config | rays | hits | march ref CUDA (ms) | march fused CUDA (ms) | speed-up | fused CUDA rays/s "
-            "| march fused CPU (ms) | CUDA vs CPU | f+b ref CUDA (ms) | f+b fused CUDA (ms) | speed-up "
-            "| f+b fused CPU (ms) | CUDA vs CPU | peak GPU mem f+b ref / fused (MiB) |")
+            "| march fused CPU (ms) | CUDA vs CPU | f+b ref CUDA (ms) | f+b fused march + PyTorch stage 2 CUDA (ms) "
+            "| f+b fused CUDA (ms) | speed-up | fused f+b / fused march | f+b fused CPU (ms) | CUDA vs CPU "
+            "| peak GPU mem f+b ref / fused march + PyTorch stage 2 / fused (MiB) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
             _march_cells(cfg, r, 2) + f" | {r['march_host']:.1f} "
-            f"| {r['march_host'] / r['march_fused']:.1f}x | {r['render_reference']:.2f} | {r['render_fused']:.2f} "
-            f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['render_host']:.1f} "
-            f"| {r['render_host'] / r['render_fused']:.1f}x | {r['mem_reference']:.0f} / {r['mem_fused']:.0f} |")
+            f"| {r['march_host'] / r['march_fused']:.1f}x | {r['render_reference']:.2f} "
+            f"| {r['render_fused_march']:.2f} | {r['render_fused']:.2f} "
+            f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['render_fused'] / r['march_fused']:.2f} "
+            f"| {r['render_host']:.1f} | {r['render_host'] / r['render_fused']:.1f}x "
+            f"| {r['mem_reference']:.0f} / {r['mem_fused_march']:.0f} / {r['mem_fused']:.0f} |")
     return "\n".join(lines)
 
 
 def cpu_table(rows: list[tuple[Config, dict]]) -> str:
     """The same runs in CPU time (all threads of the process; medians): less sensitive to a busy
     machine than wall time, but blind to how well the work spreads over the cores."""
-    head = ("| config | march ref (CPU ms) | march fused (CPU ms) | ratio | f+b with ref march (CPU ms) "
-            "| f+b with fused march (CPU ms) | ratio |")
+    head = ("| config | march ref (CPU ms) | march fused (CPU ms) | ratio | f+b reference (CPU ms) "
+            "| f+b fused march + PyTorch stage 2 (CPU ms) | f+b fused (CPU ms) | ratio ref / fused |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
             f"| {cfg.name} | {r['march_reference_cpu']:.1f} | {r['march_fused_cpu']:.1f} "
             f"| {r['march_reference_cpu'] / r['march_fused_cpu']:.1f}x | {r['render_reference_cpu']:.1f} "
-            f"| {r['render_fused_cpu']:.1f} | {r['render_reference_cpu'] / r['render_fused_cpu']:.1f}x |")
+            f"| {r['render_fused_march_cpu']:.1f} | {r['render_fused_cpu']:.1f} "
+            f"| {r['render_reference_cpu'] / r['render_fused_cpu']:.1f}x |")
     return "\n".join(lines)
 
 
@@ -314,7 +335,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--threads", type=int, default=None, help="torch and numba threads (default: all)")
     parser.add_argument("--torch-threads", type=int, default=None,
-                        help="torch threads (default: --threads if given, else 1; 0: torch's default)")
+                        help="torch threads (default: --threads if given, else torch's default; 0: torch's default)")
     parser.add_argument("--memory-probe", nargs=2, metavar=("IMAGE,BATCH,GRID", "BACKEND"), help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.repeats is not None and args.repeats < 1:
@@ -327,14 +348,15 @@ def main(argv: list[str] | None = None) -> None:
         torch.set_num_threads(args.threads)
         numba.set_num_threads(args.threads)
     if args.torch_threads is None:
-        args.torch_threads = args.threads or 1
+        args.torch_threads = args.threads or 0
     if args.torch_threads < 0:
         raise ValueError(f"--torch-threads must be 0 (torch's default) or more, got {args.torch_threads}")
     if args.torch_threads > 0:
         torch.set_num_threads(args.torch_threads)
     if args.memory_probe:
         image, batch, grid = (int(x) for x in args.memory_probe[0].split(","))
-        print(json.dumps(measure_memory(Config(image, batch, grid), args.memory_probe[1])))
+        backend, stage2 = args.memory_probe[1].split(",")
+        print(json.dumps(measure_memory(Config(image, batch, grid), backend, stage2)))
         return
     device = torch.device(args.device)
     for backend in ("cpu", fused_backend(device)):
@@ -347,11 +369,11 @@ def main(argv: list[str] | None = None) -> None:
     for cfg in CUDA_CONFIGS if device.type == "cuda" else CONFIGS:
         print(f"timing {cfg.name} ...", file=sys.stderr, flush=True)
         row = time_config(cfg, repeats, device)
-        for label, backend in march_backends(device).items():
+        for label, (backend, stage2) in render_variants(device).items():
             if device.type == "cuda":
-                mem = measure_cuda_memory(cfg, backend, device)
+                mem = measure_cuda_memory(cfg, backend, stage2, device)
             else:
-                mem = memory_in_subprocess(cfg, backend, args.threads, args.torch_threads)
+                mem = memory_in_subprocess(cfg, backend, stage2, args.threads, args.torch_threads)
             row[f"mem_{label}"] = float(mem["peak_mib"])
             row["mem_method"] = mem["method"]
         rows.append((cfg, row))
@@ -376,14 +398,16 @@ def main(argv: list[str] | None = None) -> None:
             "for the scenes).\n\n"
             f"Machine: {machine()}; 1-minute load average {load_before[0]:.1f} before the run and "
             f"{load_after[0]:.1f} after it (the machine is shared: a load above its CPU count slows the "
-            "reference march, a long chain of small PyTorch ops, more than the fused kernel).\n\n"
+            "reference, a long chain of small PyTorch ops, more than the fused kernels).\n\n"
             + text + "\n\n"
             "CPU time of the same calls (user + system, all threads of the process):\n\n"
             + text_cpu + "\n\n"
             "- march: `renderer.sphere_trace` (rays + the no-gradient march); ref = the vectorised-PyTorch "
             "reference (renderer/reference.py), fused = the numba CPU kernel (renderer/kernels/).\n"
-            "- f+b: `renderer.render` with the default Scene plus `backward()` into the grid values; the "
-            "stage-2 (PyTorch) part is the same code in both columns.\n"
+            "- f+b: a render with the default Scene plus `backward()` into the grid values: reference = "
+            "`render(backend=\"reference\")` (PyTorch march and stage 2), fused march + PyTorch stage 2 = "
+            "the fused march with `shade_trace(stage2=\"reference\")` (the pipeline before stage 2 was "
+            "fused), fused = `render()` with both stages fused (renderer/stage2.py), the default.\n"
             f"- peak mem: the peak extra resident memory of one forward + backward in a fresh process "
             f"({method}; see the script's docstring).\n"
         )
@@ -406,8 +430,9 @@ def write_cuda_report(path: Path, rows: list[tuple[Config, dict]], repeats: int,
         "- march: `renderer.sphere_trace` (rays + the no-gradient march): ref = the vectorised-PyTorch reference "
         "on CUDA tensors, fused CUDA = the numba CUDA kernel (renderer/kernels/), fused CPU = the numba CPU "
         "kernel on the same host's cores, on the same scenes.\n"
-        "- f+b: `renderer.render` with the default Scene plus `backward()` into the grid values; the stage-2 "
-        "(PyTorch) part is the same code in every column, on the GPU for the CUDA columns.\n"
+        "- f+b: a render with the default Scene plus `backward()` into the grid values: reference (PyTorch "
+        "march and stage 2), the fused march with the PyTorch stage 2, and both stages fused (the default); "
+        "fused CPU = both stages fused on the host's cores.\n"
         "- peak GPU mem: the peak extra GPU memory of one forward + backward (torch.cuda.max_memory_allocated "
         "beyond what was allocated before it).\n"
     )

@@ -65,6 +65,7 @@ class SDFGrid:
         if min(values.shape[1:]) < 2:
             raise ValueError(f"values needs at least 2 samples per axis, got {tuple(values.shape[1:])}")
         require_finite(values, "values")
+        self._checked_version = values._version  # what require_finite saw (see ``unchanged_since_checked``)
         self.values = values
         self.bbox_min = _as_bound(bbox_min, "bbox_min", values.dtype, values.device)
         self.bbox_max = _as_bound(bbox_max, "bbox_max", values.dtype, values.device)
@@ -128,6 +129,11 @@ class SDFGrid:
     def with_values(self, values: torch.Tensor) -> "SDFGrid":
         """A grid with the same box and new values."""
         return SDFGrid(values, self.bbox_min, self.bbox_max)
+
+    def unchanged_since_checked(self) -> bool:
+        """Whether ``values`` is still the tensor this grid checked for NaN/Inf when it was built, with
+        no in-place change since (torch counts them in ``Tensor._version``), so the check still holds."""
+        return getattr(self, "_checked_version", None) == self.values._version
 
     def detach(self) -> "SDFGrid":
         """The same grid cut from autograd: ``values.detach()`` (shares memory, no copy) and the

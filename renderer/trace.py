@@ -131,7 +131,8 @@ def sphere_trace(
         raise TypeError(f"cameras must be a Cameras, got {type(cameras).__name__}")
     # SDFGrid checks its values when built but keeps the tensor without a copy: an in-place change
     # (an optimiser step, a caller's edit) since then would march and shade NaN silently.
-    require_finite(grid.values, "grid.values")
+    if not grid.unchanged_since_checked():
+        require_finite(grid.values, "grid.values")
     gidx = camera_grid_index(grid, cameras)
     cams = cameras.to(device=grid.device, dtype=grid.dtype)
     origins, directions = cams.rays()

@@ -12,8 +12,9 @@ The kernels compile on first use, once per dtype, and numba caches them on disk 
 package, else in numba's user cache directory, else in a temporary directory), so a new process
 loads them instead of compiling again. ``NUMBA_CACHE_DIR`` overrides the location.
 
-The CPU kernel runs on numba's "workqueue" thread pool unless numba's pool was already started or
-the user chose a layer (``NUMBA_THREADING_LAYER``): see ``_start_thread_pool`` for why.
+The CPU kernels run on numba's "omp" thread pool, the GNU OpenMP runtime torch uses, unless numba's
+pool was already started or the user chose a layer (``NUMBA_THREADING_LAYER``): see
+``_start_thread_pool`` for why.
 """
 from __future__ import annotations
 
@@ -63,16 +64,19 @@ def _configure_cache() -> None:
 
 
 def _start_thread_pool() -> None:
-    """Starts numba's CPU thread pool, on the "workqueue" layer unless the user chose one.
+    """Starts numba's CPU thread pool, preferring its "omp" layer unless the user chose one.
 
-    numba prefers its "omp" layer, and in a process that imported torch that layer runs on torch's
-    GNU OpenMP runtime, whose idle workers busy-wait after each parallel region. The kernel is
-    followed by PyTorch code (the differentiable stage), and on a machine whose cores are shared
-    with other jobs the spinning workers take the cores that code needs, which made it many times
-    slower (figures: docs/measurements.md). numba's own "workqueue" pool sleeps between kernels and
-    marches as fast. It runs one kernel at a time (``_launch`` serialises calls) and is
-    fork-safe, unlike GNU OpenMP. The layer is process-wide and fixed when the pool starts, so
-    nothing changes if numba's pool is already running or ``NUMBA_THREADING_LAYER`` is set.
+    torch runs its CPU ops on GNU OpenMP, and numba's "omp" layer joins that same runtime, so the
+    fused kernels and torch's ops take turns on one pool of threads (``_launch`` runs the kernels
+    with torch's thread count). With numba's own "workqueue" pool beside it instead, torch's workers,
+    which busy-wait for a while after each op, and numba's threads fought over the cores: with both
+    stages fused, a forward + backward at 64^2, B = 32 on 2 cores took 86 ms that way and 54 ms on
+    one pool (docs/measurements.md; when stage 2 was still dozens of PyTorch ops the spinning hurt
+    those ops instead, and workqueue was the better choice). Where numba has no "omp" layer it takes
+    "tbb", else "workqueue". The layer is process-wide and fixed when the pool starts, so nothing
+    changes if numba's pool is already running or ``NUMBA_THREADING_LAYER`` is set. GNU OpenMP is
+    not fork-safe: a forked child must not run numba parallel code (the project's process pools
+    spawn their workers).
     """
     import numba
 
@@ -83,8 +87,11 @@ def _start_thread_pool() -> None:
     if getattr(parallel, "_is_initialized", True):
         return
     if "NUMBA_THREADING_LAYER" not in os.environ and str(numba.config.THREADING_LAYER) == "default":
-        numba.config.THREADING_LAYER = "workqueue"
+        numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+    threads = torch.get_num_threads()
     numba.get_num_threads()  # starts the pool now, with that layer
+    if torch.get_num_threads() != threads:  # the "omp" pool set the shared runtime's count to its own
+        torch.set_num_threads(threads)
 
 
 def start_cpu_thread_pool() -> None:
@@ -310,7 +317,16 @@ def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], 
         # several Python threads.
         arrays = [x.numpy() if isinstance(x, torch.Tensor) else x for x in tensors]
         with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK_BLOCKS):
-            cpu_kernel(*arrays)
+            # The kernels use torch's thread count (``torch.set_num_threads`` governs both), and
+            # torch keeps it: on the shared OpenMP runtime a numba launch sets the count torch
+            # reads to numba's own.
+            threads = torch.get_num_threads()
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+            try:
+                cpu_kernel(*arrays)
+            finally:
+                if torch.get_num_threads() != threads:
+                    torch.set_num_threads(threads)
         return
     from numba import cuda
 
@@ -350,12 +366,17 @@ def shade_backward(backend: str, values: torch.Tensor, params: torch.Tensor, ipa
     gradients ``grads`` (depth, normal, image, silhouette; empty where there is none)."""
     m = _load_march()
     r = rays["hit"].shape[0]
-    grad = torch.zeros_like(values)
+    # The CPU kernel zeroes the gradient itself, grid by grid in the thread that fills it.
+    grad = torch.empty_like(values) if backend == "cpu" else torch.zeros_like(values)
     common = [values, params, iparams, sparams, sflags, lights, rays["hit"], rays["points"], rays["directions"],
               rays["extreme"], rays["t_extreme"], rays["steps"], rays["cam_grid"], rays["pixel_angle"],
               rays["eyes"], grads["depth"], grads["normal"], grads["image"], grads["silhouette"]]
     if backend == "cpu":
-        scratch = torch.empty(r, 8, dtype=values.dtype)
+        import numba
+
+        # Whole grids per thread when there are enough of them to share out (see the kernel).
+        one_pass = grids >= 2 * numba.get_num_threads()
+        scratch = torch.empty(0 if one_pass else r, 8, dtype=values.dtype)
         _launch("cpu", m.shade_rays_backward_cpu, None,
                 common + [grids, scratch, grad], r)
     else:

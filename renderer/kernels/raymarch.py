@@ -956,21 +956,47 @@ def shade_rays_cpu(values, params, iparams, sparams, sflags, lights, hit, t, poi
                     normal_out, image_out, silhouette_out)
 
 
+@ray_function
+def backward_scatter_block(start, end, grad, values, params, iparams, sparams, sflags, lights, hit, points, directions,
+                           extreme, t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal,
+                           grad_image, grad_silhouette):
+    """``shade_ray_backward`` then ``scatter_ray`` for rays start..end-1, each ray's samples added
+    while they are still in the cache."""
+    for r in range(start, end):
+        px, py, pz, g_s, ggx, ggy, ggz, g_sil = shade_ray_backward(
+            r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme, t_extreme,
+            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+        scatter_ray(r, grad, params, iparams, sparams, sflags, hit, points, extreme, steps, cam_grid, px, py, pz,
+                    g_s, ggx, ggy, ggz, g_sil)
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def shade_rays_backward_cpu(values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme,
                             t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image,
                             grad_silhouette, grids, scratch, grad):
-    """CPU kernel of stage 2's backward. First every ray's gradients (``shade_ray_backward``, blocks
-    of rays in parallel) into ``scratch`` (R, 8); then they are added into ``grad`` (the flat
-    gradient of the values), in parallel over the ``grids`` grids: the rays of grid g are a
-    contiguous range (consecutive cameras see the same grid), so no two threads write one sample."""
+    """CPU kernel of stage 2's backward into ``grad`` (the flat gradient of the values, zeroed here:
+    its contents on entry do not matter). The rays of
+    grid g are a contiguous range (consecutive cameras see the same grid), so threads that each take
+    whole grids never write the same sample: with ``scratch`` empty (several grids per thread) one
+    pass over the grids does each ray's gradient and its scatter together; otherwise every ray's
+    gradient first goes into ``scratch`` (R, 8) (blocks of rays in parallel), then the scatter runs
+    over the grids (serially when there is one)."""
     n = hit.shape[0]
+    per_grid = n // grids
+    size = grad.shape[0] // grids
+    if scratch.shape[0] == 0:
+        for g in prange(grids):
+            grad[g * size:(g + 1) * size] = 0  # zeroed by the thread that adds into it: still cached then
+            backward_scatter_block(g * per_grid, (g + 1) * per_grid, grad, values, params, iparams, sparams, sflags,
+                                   lights, hit, points, directions, extreme, t_extreme, steps, cam_grid, pixel_angle,
+                                   eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+        return
     for blk in prange((n + BLOCK - 1) // BLOCK):
         shade_backward_block(blk * BLOCK, min(n, (blk + 1) * BLOCK), values, params, iparams, sparams, sflags,
                              lights, hit, points, directions, extreme, t_extreme, steps, cam_grid, pixel_angle,
                              eyes, grad_depth, grad_normal, grad_image, grad_silhouette, scratch)
-    per_grid = n // grids
     for g in prange(grids):
+        grad[g * size:(g + 1) * size] = 0
         scatter_block(g * per_grid, (g + 1) * per_grid, grad, params, iparams, sparams, sflags, hit, points,
                       extreme, steps, cam_grid, scratch)
 

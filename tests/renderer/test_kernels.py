@@ -333,14 +333,14 @@ def test_same_result_with_one_and_two_threads():
     grid = SDFGrid(random_smooth_values(2, 24, seed=11, dtype=torch.float32))
     cams = _look([[0.3, 0.4, 2.5], [2.0, 1.0, -1.0]], fov=50, size=48)
     rays = camera_rays(grid, cams)
-    before = numba.get_num_threads()
+    before = torch.get_num_threads()  # the kernels run with torch's thread count
     try:
         outs = []
         for n in (1, 2):
-            numba.set_num_threads(n)
+            torch.set_num_threads(n)
             outs.append(kernels.march("cpu", grid, *rays, TraceSettings()))
     finally:
-        numba.set_num_threads(before)
+        torch.set_num_threads(before)
     for key in outs[0]:
         assert torch.equal(outs[0][key], outs[1][key]), key
 
@@ -731,12 +731,12 @@ print(json.dumps({"layer": numba.threading_layer(), "runs": len(results), "same"
 """
 
 
-@pytest.mark.parametrize("chosen", [None, "omp"])
+@pytest.mark.parametrize("chosen", [None, "workqueue"])
 def test_thread_pool_layer_and_concurrent_calls(chosen):
-    """In a fresh process the kernel starts numba's pool on the "workqueue" layer (GNU OpenMP's
-    busy-waiting workers slowed the PyTorch code after each march ~40x on a shared machine),
-    unless the user chose a layer; calls from several Python threads at once (which that layer
-    does not allow) are serialised and give the same result."""
+    """In a fresh process the kernel starts numba's pool on the "omp" layer (torch's own OpenMP
+    runtime: one pool for torch's ops and the kernels), unless the user chose a layer; calls from
+    several Python threads at once (which the workqueue layer does not allow) are serialised and
+    give the same result."""
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_DISABLE_JIT", "NUMBA_THREADING_LAYER")}
     if chosen:
         env["NUMBA_THREADING_LAYER"] = chosen
@@ -744,4 +744,18 @@ def test_thread_pool_layer_and_concurrent_calls(chosen):
                          timeout=300)
     assert out.returncode == 0, out.stderr[-3000:]
     res = json.loads(out.stdout.strip().splitlines()[-1])
-    assert res == {"layer": chosen or "workqueue", "runs": 20, "same": True, "errors": []}, res
+    assert res == {"layer": chosen or "omp", "runs": 20, "same": True, "errors": []}, res
+
+
+def test_kernels_leave_torchs_thread_count_alone():
+    """On the shared OpenMP pool the kernels run with torch's thread count, so a render does not
+    change what torch uses (numba would set the runtime's count to its own)."""
+    code = ("import torch\ntorch.set_num_threads(1)\n"
+            "from renderer import SDFGrid, Cameras, render\n"
+            "grid = SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 12)\n"
+            "render(grid, Cameras.look_at([[0.3, 0.2, 3.0]], image_size=16), backend='cpu')\n"
+            "print(torch.get_num_threads())\n")
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_DISABLE_JIT", "NUMBA_THREADING_LAYER")}
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert out.stdout.strip().splitlines()[-1] == "1"

@@ -265,3 +265,20 @@ def test_backward_memory_does_not_grow_with_max_steps():
     small, large = _saved_bytes(32), _saved_bytes(256)
     assert small > 0
     assert large == small
+
+
+def test_an_unchanged_grid_is_not_checked_again_at_render(monkeypatch):
+    """SDFGrid checks its values once when built; the render checks them again only after an
+    in-place change (one pass over the grid saved per call)."""
+    import renderer.trace as trace_module
+
+    checked = []
+    real = trace_module.require_finite
+    monkeypatch.setattr(trace_module, "require_finite", lambda v, name: checked.append(name) or real(v, name))
+    grid = SDFGrid.from_function(sphere_sdf(0.5), 8)
+    cams = Cameras.look_at([[0.0, 0.0, 3.0]], image_size=4)
+    render(grid, cams, ALL)
+    assert checked == []
+    grid.values.mul_(1.0)
+    render(grid, cams, ALL)
+    assert checked == ["grid.values"]
