@@ -30,7 +30,7 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture(autouse=True)
 def _quiet_fallback():
     with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="fused .* march unavailable")
+        warnings.filterwarnings("ignore", message="the fused .* kernels are unavailable")
         yield
 
 

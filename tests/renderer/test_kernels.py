@@ -373,17 +373,20 @@ def test_auto_picks_the_fused_kernel_for_cpu_tensors():
     assert out.backend == "cpu"
 
 
-def test_auto_falls_back_to_the_reference_with_one_warning(monkeypatch):
+def test_auto_falls_back_to_the_reference_with_one_warning(monkeypatch, caplog):
+    """Loudly: a RuntimeWarning and a logged warning (which reaches the commands' log files), once."""
     monkeypatch.setattr(kernels, "available", lambda backend: (False, "testing the fallback"))
     monkeypatch.setattr(trace_module, "_warned", set())
     grid = _grid(sphere_sdf(0.5), 8, torch.float32)
     cams = _look([[0.0, 0.0, 3.0]], size=4)
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, caplog.at_level("WARNING", logger="renderer"):
         warnings.simplefilter("always")
-        outs = [sphere_trace(grid, cams, backend="auto") for _ in range(3)]
-    assert [o.backend for o in outs] == ["reference"] * 3
+        outs = [render(grid, cams, backend="auto") for _ in range(3)]
+    assert [o.trace.backend for o in outs] == ["reference"] * 3
     fallback = [w for w in caught if "testing the fallback" in str(w.message)]
     assert len(fallback) == 1
+    assert [r.getMessage() for r in caplog.records if "testing the fallback" in r.getMessage()] == [
+        str(fallback[0].message)]
     with pytest.raises(RuntimeError, match="testing the fallback"):
         sphere_trace(grid, cams, backend="cpu")
 
