@@ -67,13 +67,14 @@ class SDFGrid:
         require_finite(values, "values")
         self._checked_version = values._version  # what require_finite saw (see ``unchanged_since_checked``)
         self.values = values
-        self.bbox_min = _as_bound(bbox_min, "bbox_min", values.dtype, values.device)
-        self.bbox_max = _as_bound(bbox_max, "bbox_max", values.dtype, values.device)
-        if not bool((self.bbox_max > self.bbox_min).all()):
-            raise ValueError(
-                f"bbox_max must exceed bbox_min on every axis, got {self.bbox_min.tolist()} and "
-                f"{self.bbox_max.tolist()}"
-            )
+        # The box is checked and kept on the host too (``host_box``): the kernels' parameters are
+        # made from it without waiting for the GPU.
+        lo = _as_bound(bbox_min, "bbox_min", values.dtype, torch.device("cpu"))
+        hi = _as_bound(bbox_max, "bbox_max", values.dtype, torch.device("cpu"))
+        if not bool((hi > lo).all()):
+            raise ValueError(f"bbox_max must exceed bbox_min on every axis, got {lo.tolist()} and {hi.tolist()}")
+        self._box_cpu = (lo, hi)
+        self.bbox_min, self.bbox_max = lo.to(values.device), hi.to(values.device)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -109,6 +110,18 @@ class SDFGrid:
         res = torch.tensor(self.resolution, dtype=self.values.dtype, device=self.values.device)
         return (self.bbox_max - self.bbox_min) / (res - 1)
 
+    def host_box(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """(bbox_min, bbox_max) as CPU tensors (the grid's dtype), copied from the device once."""
+        box = getattr(self, "_box_cpu", None)
+        if box is None:
+            box = self._box_cpu = (self.bbox_min.detach().cpu(), self.bbox_max.detach().cpu())
+        return box
+
+    def host_voxel_size(self) -> torch.Tensor:
+        """``voxel_size`` as a CPU tensor (the same arithmetic, on the host box)."""
+        lo, hi = self.host_box()
+        return (hi - lo) / (torch.tensor(self.resolution, dtype=lo.dtype) - 1)
+
     @property
     def dtype(self) -> torch.dtype:
         return self.values.dtype
@@ -138,7 +151,9 @@ class SDFGrid:
     def detach(self) -> "SDFGrid":
         """The same grid cut from autograd: ``values.detach()`` (shares memory, no copy) and the
         same box, e.g. for sampling it without recording gradients. Not checked again (this grid was)."""
-        return SDFGrid._unchecked(self.values.detach(), self.bbox_min.detach(), self.bbox_max.detach())
+        out = SDFGrid._unchecked(self.values.detach(), self.bbox_min.detach(), self.bbox_max.detach())
+        out._box_cpu = getattr(self, "_box_cpu", None)
+        return out
 
     @staticmethod
     def _unchecked(values: torch.Tensor, bbox_min: torch.Tensor, bbox_max: torch.Tensor) -> "SDFGrid":

@@ -48,7 +48,7 @@ def box_interval(origins: torch.Tensor, directions: torch.Tensor, lo: torch.Tens
 
 def min_threshold(grid: SDFGrid) -> float:
     """The floor of the hit threshold: a tiny fraction of the voxel, so marches always progress."""
-    return 1e-4 * float(grid.voxel_size.min())
+    return 1e-4 * float(grid.host_voxel_size().min())
 
 
 @torch.no_grad()

@@ -109,7 +109,7 @@ class _FusedStage2(torch.autograd.Function):
                 grads[name] = grad.to(dt).contiguous()
                 sflags[flag] = 1
         flat = values.detach().contiguous().reshape(-1)
-        sflags = sflags.to(dev, non_blocking=True)
+        sflags = kernels._on_device(sflags, dev)
         grad = kernels.shade_backward(launch.backend, flat, launch.params, launch.iparams, launch.sparams, sflags,
                                       launch.lights, launch.rays, grads, launch.grids)
         return grad.view(values.shape), None
@@ -147,7 +147,7 @@ def shade_trace_fused(grid: SDFGrid, cameras: Cameras, trace: TraceResult, scene
     }
     want = {"depth": scene.wants("depth"), "normal": scene.wants("normal"), "image": scene.wants("shading"),
             "silhouette": scene.wants("silhouette")}
-    launch = _Launch(backend, params, iparams, sparams, sflags_host.to(dev), lights, sflags_host, rays,
+    launch = _Launch(backend, params, iparams, sparams, kernels._on_device(sflags_host, dev), lights, sflags_host, rays,
                      grid.batch_size, scene.channels, want)
     depth, normal, image, silhouette = _FusedStage2.apply(grid.values, launch)
     return (depth.view(b, h, w) if scene.wants("depth") else None,

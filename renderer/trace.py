@@ -155,7 +155,7 @@ def sphere_trace(
     else:
         from . import kernels
 
-        out = kernels.march(chosen, grid, o, d, ray_grid, ray_pix, settings)
+        out = kernels.march(chosen, grid, o, d, ray_grid, ray_pix, settings, check_indices=False)
     t = out["t"].reshape(b, h, w)
     return TraceResult(
         hit=out["hit"].reshape(b, h, w),

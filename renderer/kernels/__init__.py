@@ -160,28 +160,45 @@ def _march_one_ray_on_gpu() -> None:
         raise RuntimeError(f"a ray into a sphere grid came back wrong (hit={hit}, t={t:.4f}, expected t~2.5)")
 
 
+_DEVICE_CONSTANTS: dict[tuple, torch.Tensor] = {}
+
+
+def _on_device(t: torch.Tensor, device: torch.device) -> torch.Tensor:
+    """A small CPU tensor of kernel parameters on ``device``: on a GPU, one copy per distinct
+    content, kept (a render copies no parameters to the GPU and waits for no copy after the first)."""
+    if device.type == "cpu":
+        return t
+    key = (device, t.dtype, tuple(t.shape), tuple(t.reshape(-1).tolist()))
+    out = _DEVICE_CONSTANTS.get(key)
+    if out is None:
+        if len(_DEVICE_CONSTANTS) > 4096:  # parameters of many distinct grids or scenes
+            _DEVICE_CONSTANTS.clear()
+        out = _DEVICE_CONSTANTS[key] = t.to(device)
+    return out
+
+
 def _params(grid: SDFGrid, settings: TraceSettings) -> tuple[torch.Tensor, torch.Tensor]:
-    """The grid and settings packed for the kernels (layout in renderer/kernels/raymarch.py)."""
+    """The grid and settings packed for the kernels (layout in renderer/kernels/raymarch.py), made
+    on the host from the grid's host box and copied to its device (``_on_device``)."""
     march_module = _load_march()
-    dt, dev = grid.dtype, grid.device
-    lo, hi = grid.bbox_min, grid.bbox_max
-    res = torch.tensor(grid.resolution, dtype=dt, device=dev)
+    dt = grid.dtype
+    lo, hi = grid.host_box()
+    res = torch.tensor(grid.resolution, dtype=dt)
     floor = min_threshold(grid)
     fixed = settings.threshold is not None
     consts = torch.tensor(
         [0.0, 1.0, TINY_DIRECTION, floor, settings.threshold_scale,
-         max(float(settings.threshold), floor) if fixed else 0.0, -settings.inner_depth],
-        dtype=dt, device=dev)
+         max(float(settings.threshold), floor) if fixed else 0.0, -settings.inner_depth], dtype=dt)
     # The same tensor expressions as the reference, so the kernels see bit-identical constants.
-    params = torch.cat([lo, hi, grid.voxel_size, (lo + hi) / 2, res - 1, res - 2, consts]).contiguous()
+    params = torch.cat([lo, hi, grid.host_voxel_size(), (lo + hi) / 2, res - 1, res - 2, consts]).contiguous()
     iparams = torch.tensor([*grid.resolution, settings.max_steps, settings.inner_steps, int(fixed)],
-                           dtype=torch.int64, device=dev)
+                           dtype=torch.int64)
     if params.numel() != march_module.N_PARAMS or iparams.numel() != march_module.N_IPARAMS:
         raise RuntimeError("renderer/kernels: the parameter layout and raymarch.py disagree")
-    return params, iparams
+    return _on_device(params, grid.device), _on_device(iparams, grid.device)
 
 
-def _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings) -> int:
+def _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings, check_indices: bool = True) -> int:
     if not isinstance(grid, SDFGrid):
         raise TypeError(f"grid must be an SDFGrid, got {type(grid).__name__}")
     if not isinstance(settings, TraceSettings):
@@ -202,7 +219,7 @@ def _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings) 
                          f"{grid_index.dtype} {tuple(grid_index.shape)}")
     if pixel_angle.shape != (r,):
         raise ValueError(f"pixel_angle must have shape ({r},), got {tuple(pixel_angle.shape)}")
-    if r and (int(grid_index.min()) < 0 or int(grid_index.max()) >= grid.batch_size):
+    if check_indices and r and (int(grid_index.min()) < 0 or int(grid_index.max()) >= grid.batch_size):
         raise ValueError(f"grid_index must lie in [0, {grid.batch_size}) (the grid batch)")
     return r
 
@@ -216,6 +233,7 @@ def march(
     grid_index: torch.Tensor,
     pixel_angle: torch.Tensor,
     settings: TraceSettings,
+    check_indices: bool = True,
 ) -> dict[str, torch.Tensor]:
     """Sphere-traces R rays with the fused kernel: the same contract as ``march_reference``.
 
@@ -226,6 +244,8 @@ def march(
         grid_index: (R,) integer, the grid each ray reads.
         pixel_angle: (R,) pixel footprint per unit distance.
         settings: the march settings.
+        check_indices: whether to check that ``grid_index`` lies in the grid batch (a min/max that
+            waits for the GPU; ``sphere_trace`` makes the indices itself and skips it).
     Returns:
         dict with t (R,), hit (R,) bool, extreme (R, 3), t_extreme (R,) in the grid dtype and
         steps (R,) int32, on the grid's device, detached.
@@ -237,7 +257,7 @@ def march(
         raise RuntimeError(f"backend={backend!r} is not available: {why}")
     if (backend == "cuda") != (grid.device.type == "cuda"):
         raise ValueError(f"backend={backend!r} cannot march a grid on device {grid.device}")
-    _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings)
+    _check_inputs(grid, origins, directions, grid_index, pixel_angle, settings, check_indices)
     return _run(backend, grid, origins, directions, grid_index, pixel_angle, settings)
 
 
@@ -280,7 +300,7 @@ def stage2_params(grid: SDFGrid, scene, pixels: int) -> tuple[torch.Tensor, torc
     if len(background) == 1:
         background = background * channels
     camera_light = scene.camera_light
-    vox = grid.voxel_size.cpu()
+    vox = grid.host_voxel_size()
     inv_span = torch.cat([1 / vox, 1 / (2 * vox)])  # as SDFGrid.sample_gradient forms them
     sparams = torch.cat([torch.tensor([scene.ambient, scene.silhouette_sigma, info.eps, info.tiny,
                                        0.0 if camera_light is None else camera_light], dtype=dt),
@@ -302,8 +322,7 @@ def stage2_params(grid: SDFGrid, scene, pixels: int) -> tuple[torch.Tensor, torc
             d = d / d.norm()
             rows.append(torch.cat([torch.zeros(1, dtype=dt), d, torch.tensor([light.intensity, 0.0], dtype=dt)]))
     lights = torch.stack(rows) if rows else torch.zeros(0, 6, dtype=dt)
-    dev = grid.device
-    return sparams.to(dev), sflags, lights.to(dev)
+    return _on_device(sparams, grid.device), sflags, _on_device(lights, grid.device)
 
 
 def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], rays: int) -> None:

@@ -70,3 +70,13 @@ def test_detach_shares_values_and_box_without_autograd():
     b = torch.tensor([0, 1, 0, 1, 0, 1, 0])
     assert not cut.sample(p, b).requires_grad
     torch.testing.assert_close(cut.sample(p, b), grid.sample(p, b).detach())
+
+
+def test_host_box_and_voxel_size_match_the_grids_own():
+    """The host copies the kernels' parameters are made from (no wait for a GPU) equal the grid's
+    box and voxel size, for a grid built, detached and made without the checks."""
+    grid = SDFGrid(torch.zeros(2, 5, 7, 9, dtype=torch.float64), (-1.0, -0.5, 0.0), (1.0, 0.5, 2.0))
+    for g in (grid, grid.detach(), SDFGrid._unchecked(grid.values, grid.bbox_min, grid.bbox_max)):
+        lo, hi = g.host_box()
+        assert lo.device.type == "cpu" and torch.equal(lo, grid.bbox_min) and torch.equal(hi, grid.bbox_max)
+        assert torch.equal(g.host_voxel_size(), grid.voxel_size)
