@@ -43,7 +43,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     from mvr import configure_runtime
 
-    configure_runtime(threads=1)  # configs/mvr.yaml's runtime, as the command sets it
+    configure_runtime(threads=1)  # one thread, as docs/mvr_shapes.md was measured (the command: every core)
     rows = []
     for shape in args.shapes:
         t0 = time.perf_counter()

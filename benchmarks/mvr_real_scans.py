@@ -293,7 +293,8 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
         summary(rows, configs, goal),
         "",
         f"Error pictures (`errors.png` in each run's folder): red where the distance is at least "
-        f"{error_scale:g} of the bounding-box diagonal.",
+        f"{error_scale:g} of the bounding-box diagonal. Where the error comes from: "
+        "[mvr_method.md](mvr_method.md#real-scanned-meshes-where-the-error-is-issue-20).",
         "",
     ])
     outputs.write_text(out / "table.md", text + "\nMachine:\n\n" + machine_info() + "\n")

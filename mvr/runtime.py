@@ -4,8 +4,10 @@ import).
 Three effects, each large on machines whose few cores are shared with other jobs (the figures
 measured on one such machine: docs/measurements.md):
 
-* Thread oversubscription: with other jobs on the cores, torch's intra-op threads wait for each
-  other, which made the 64^3 eikonal term many times slower on 2 threads than on 1.
+* Threads: the command uses every core by default (``runtime.threads: null``): with the fused
+  renderer and regularisers a 64^3 pass is much faster on 2 threads than on 1 (docs/mvr_method.md).
+  Where other jobs share the cores, torch's intra-op threads wait for each other (this once made
+  the 64^3 eikonal term many times slower on 2 threads): ``runtime.threads=1`` then.
 * Page faults: glibc serves an allocation above its mmap threshold (128 KiB to start with) by a
   fresh ``mmap`` and returns it to the OS when freed, so each backward pass, which allocates many
   grid-sized (1 MiB at 64^3) gradient buffers, can page-fault them in again. Raising glibc's mmap
