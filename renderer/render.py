@@ -13,7 +13,7 @@ from .scene import Scene
 from .settings import TraceSettings
 from .shading import hit_points_conservative, shade_lambert, soft_silhouette, surface_normals
 from .stage2 import STAGE2, can_fuse, fused_backend, shade_trace_fused
-from .trace import TraceResult, sphere_trace
+from .trace import TraceResult, _warn_once, sphere_trace
 
 
 @dataclass(frozen=True)
@@ -88,6 +88,8 @@ def shade_trace(grid: SDFGrid, cameras: Cameras, trace: TraceResult, scene: Scen
         if backend is None:
             if stage2 == "fused":
                 raise RuntimeError(f"stage2='fused' is not available here: {why}")
+            _warn_once(f"stage2-{grid.device.type}", f"the fused stage 2 is unavailable ({why}); using the "
+                                                      "PyTorch stage 2")
         else:
             depth, normal, silhouette, image = shade_trace_fused(grid, cameras, trace, scene, backend)
             return RenderOutput(hit=trace.hit, depth=depth, normal=normal, silhouette=silhouette, image=image,

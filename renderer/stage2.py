@@ -32,7 +32,7 @@ def fused_backend(device: torch.device) -> tuple[str | None, str]:
     from . import kernels
 
     name = "cuda" if device.type == "cuda" else "cpu"
-    ok, why = kernels.available(name)
+    ok, why = kernels.stage2_available(name)
     return (name, "") if ok else (None, why)
 
 

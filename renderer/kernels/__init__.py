@@ -142,6 +142,46 @@ def available(backend: str) -> tuple[bool, str]:
     return True, ""
 
 
+@functools.lru_cache(maxsize=None)
+def stage2_available(backend: str) -> tuple[bool, str]:
+    """(True, "") if the fused stage 2 can run on ``backend`` ("cpu" or "cuda"), else (False, why).
+
+    Needs the march's kernels; on CUDA the stage-2 kernels (their atomic adds go through a
+    CUDA-target overload) are also built and run once on a one-ray render, so a numba-cuda that
+    cannot build them leaves ``render`` on the PyTorch stage 2 instead of failing in a render.
+    """
+    ok, why = available(backend)
+    if not ok or backend == "cpu":
+        return ok, why
+    try:
+        _shade_one_ray_on_gpu()
+    except Exception as exc:
+        return False, f"the fused stage 2 cannot build or run on the GPU ({type(exc).__name__}: {exc})"
+    return True, ""
+
+
+def _shade_one_ray_on_gpu() -> None:
+    """Renders one ray into an 8^3 sphere grid on the GPU with the fused stage 2, forward and
+    backward: the depth must be near 2.5 and the gradient finite and non-zero."""
+    from ..cameras import Cameras
+    from ..scene import Scene
+    from ..stage2 import shade_trace_fused
+    from ..trace import sphere_trace
+
+    dev = torch.device("cuda", torch.cuda.current_device())
+    axis = torch.linspace(-1.0, 1.0, 8, device=dev)
+    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
+    values = ((x * x + y * y + z * z).sqrt() - 0.5)[None].requires_grad_(True)
+    grid = SDFGrid(values)
+    cams = Cameras.look_at([[0.0, 0.0, 3.0]], fov_deg=1.0, image_size=1, device=dev)
+    depth, _, silhouette, image = shade_trace_fused(grid, cams, sphere_trace(grid, cams, backend="cuda"), Scene(),
+                                                    "cuda")
+    (depth.sum() + silhouette.sum() + image.sum()).backward()
+    d, g = float(depth.detach().reshape(-1)[0]), values.grad
+    if abs(d - 2.5) > 0.1 or not bool(torch.isfinite(g).all()) or float(g.abs().sum()) == 0.0:
+        raise RuntimeError(f"a one-ray render came back wrong (depth {d:.4f}, expected ~2.5)")
+
+
 def _march_one_ray_on_gpu() -> None:
     """Marches one ray into an 8^3 sphere grid (radius 0.5) on the current GPU (float32): the kernel
     is compiled (or loaded from the disk cache) and run, so a CUDA toolchain that cannot build it is

@@ -274,3 +274,22 @@ def test_cuda_stage2_kernels_compile_to_ptx(dtype, monkeypatch):
         assert ".entry" in ptx
         if body is raymarch.cuda_shade_backward_body:
             assert "atom" in ptx  # the scatter is atomic
+
+
+def test_without_the_fused_stage2_the_render_warns_and_uses_the_pytorch_one(monkeypatch, caplog):
+    """Where the stage-2 kernels cannot run (on a GPU: a numba-cuda that cannot build them), a
+    fused march is followed by the PyTorch stage 2, with one warning (also logged)."""
+    import renderer.trace as trace_module
+
+    monkeypatch.setattr(kernels, "stage2_available", lambda backend: (False, "testing the stage-2 fallback"))
+    monkeypatch.setattr(trace_module, "_warned", set())
+    grid = SDFGrid.from_function(sphere_sdf(0.5), 12, dtype=torch.float64)
+    cams = Cameras.look_at([[0.0, 0.3, 2.5]], fov_deg=40, image_size=8, dtype=torch.float64)
+    with pytest.warns(RuntimeWarning, match="testing the stage-2 fallback"), \
+            caplog.at_level("WARNING", logger="renderer"):
+        out = render(grid, cams, RICH, backend="cpu")
+        render(grid, cams, RICH, backend="cpu")
+    assert out.trace.backend == "cpu" and out.image is not None
+    assert sum("testing the stage-2 fallback" in r.getMessage() for r in caplog.records) == 1
+    with pytest.raises(RuntimeError, match="testing the stage-2 fallback"):
+        shade_trace(grid, cams, out.trace, RICH, stage2="fused")
