@@ -52,8 +52,8 @@ def test_overrides_and_bad_values():
 
 def test_configure_runtime_starts_the_renderers_thread_pool():
     """configure_runtime sets numba's thread count, which starts numba's pool: in a fresh process
-    it must be the pool the renderer's kernels choose (workqueue), not numba's default (GNU
-    OpenMP, whose spinning workers slow the PyTorch code after each march)."""
+    it must be the pool the renderer's kernels choose (renderer.start_cpu_thread_pool: "omp",
+    torch's own OpenMP runtime, where numba has that layer), not numba's own default choice."""
     import json
     import os
     import subprocess
@@ -66,7 +66,7 @@ def test_configure_runtime_starts_the_renderers_thread_pool():
     out = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).resolve().parents[2], env=env,
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert json.loads(out.stdout.strip().splitlines()[-1]) == "workqueue"
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == "omp"
 
 
 def test_paper_preset_restores_the_papers_settings():
