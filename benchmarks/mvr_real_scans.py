@@ -281,6 +281,9 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
         "",
         f"`{command}`",
         "",
+        "The mesh folder holds CGAL's scans from Debian's `libcgal-demo` package (README.md, multi-view "
+        "section, gives the commands); each mesh is reconstructed once per configuration (seed 0).",
+        "",
         "H: symmetric Hausdorff distance, H99: its 99th percentile (both sides' samples pooled), C: "
         "Chamfer distance, all relative to the target's bounding-box diagonal (50k samples per surface; "
         "H99 from 20k); s: seconds of the whole run (target, images, optimisation, evaluation); s/pass: "
