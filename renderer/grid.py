@@ -30,6 +30,14 @@ def _as_bound(value: BoundLike, name: str, dtype: torch.dtype, device: torch.dev
     return t
 
 
+def _version(t: torch.Tensor) -> int | None:
+    """torch's count of in-place changes of ``t``; None for inference tensors, which keep none."""
+    try:
+        return t._version
+    except RuntimeError:
+        return None
+
+
 def require_finite(values: torch.Tensor, name: str) -> None:
     """Raises ValueError naming ``name`` when ``values`` (any shape) holds NaN or Inf.
 
@@ -65,7 +73,7 @@ class SDFGrid:
         if min(values.shape[1:]) < 2:
             raise ValueError(f"values needs at least 2 samples per axis, got {tuple(values.shape[1:])}")
         require_finite(values, "values")
-        self._checked_version = values._version  # what require_finite saw (see ``unchanged_since_checked``)
+        self._checked_version = _version(values)  # what require_finite saw (see ``unchanged_since_checked``)
         self.values = values
         # The box is checked and kept on the host too (``host_box``): the kernels' parameters are
         # made from it without waiting for the GPU.
@@ -146,7 +154,8 @@ class SDFGrid:
     def unchanged_since_checked(self) -> bool:
         """Whether ``values`` is still the tensor this grid checked for NaN/Inf when it was built, with
         no in-place change since (torch counts them in ``Tensor._version``), so the check still holds."""
-        return getattr(self, "_checked_version", None) == self.values._version
+        checked = getattr(self, "_checked_version", None)
+        return checked is not None and checked == _version(self.values)
 
     def detach(self) -> "SDFGrid":
         """The same grid cut from autograd: ``values.detach()`` (shares memory, no copy) and the

@@ -282,3 +282,15 @@ def test_an_unchanged_grid_is_not_checked_again_at_render(monkeypatch):
     grid.values.mul_(1.0)
     render(grid, cams, ALL)
     assert checked == ["grid.values"]
+
+
+def test_grids_of_inference_tensors_are_checked_at_every_render():
+    """Inference tensors keep no count of in-place changes, so their grids are checked each time."""
+    cams = Cameras.look_at([[0.0, 0.0, 3.0]], image_size=4)
+    with torch.inference_mode():
+        grid = SDFGrid.from_function(sphere_sdf(0.5), 8)
+        assert not grid.unchanged_since_checked()
+        render(grid, cams, ALL)
+        grid.values[0, 3, 4, 2] = float("nan")
+        with pytest.raises(ValueError, match="grid.values contains NaN or Inf"):
+            render(grid, cams, ALL)
