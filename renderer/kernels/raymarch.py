@@ -488,7 +488,7 @@ LIGHT_POINT = 1
 
 def scatter_add(grad, index, value):
     """``grad[index] += value``: a plain add in the CPU kernels (each thread owns the grids it
-    writes), an atomic one in the CUDA kernel (see ``make_cuda_kernel``). This Python body runs
+    writes), an atomic one in the CUDA kernel (see ``make_cuda_shade_kernels``). This Python body runs
     only where numba's JIT is off (the CUDA simulator in the tests), under a lock."""
     with _PY_SCATTER_LOCK:
         grad[index] += value
