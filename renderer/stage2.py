@@ -79,7 +79,7 @@ class _FusedStage2(torch.autograd.Function):
         }
         kernels.shade_forward(launch.backend, flat, launch.params, launch.iparams, launch.sparams, launch.sflags,
                               launch.lights, launch.rays, outputs)
-        ctx.save_for_backward(values)
+        ctx.save_for_backward(values, outputs["silhouette"])  # the backward reads the coverage back
         ctx.launch = launch
         ctx.set_materialize_grads(False)
         for name, out in outputs.items():
@@ -92,7 +92,7 @@ class _FusedStage2(torch.autograd.Function):
     def backward(ctx, g_depth, g_normal, g_image, g_silhouette):
         from . import kernels
 
-        (values,) = ctx.saved_tensors
+        values, silhouette = ctx.saved_tensors
         launch = ctx.launch
         m = kernels._load_march()
         dt, dev = values.dtype, values.device
@@ -111,7 +111,7 @@ class _FusedStage2(torch.autograd.Function):
         flat = values.detach().contiguous().reshape(-1)
         sflags = kernels._on_device(sflags, dev)
         grad = kernels.shade_backward(launch.backend, flat, launch.params, launch.iparams, launch.sparams, sflags,
-                                      launch.lights, launch.rays, grads, launch.grids)
+                                      launch.lights, launch.rays, grads, silhouette, launch.grids)
         return grad.view(values.shape), None
 
 

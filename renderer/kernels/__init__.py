@@ -420,16 +420,17 @@ def shade_forward(backend: str, values: torch.Tensor, params: torch.Tensor, ipar
 
 def shade_backward(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: torch.Tensor,
                    sparams: torch.Tensor, sflags: torch.Tensor, lights: torch.Tensor, rays: dict,
-                   grads: dict, grids: int) -> torch.Tensor:
+                   grads: dict, silhouette: torch.Tensor, grids: int) -> torch.Tensor:
     """Runs stage 2's backward kernel: the gradient of the flat ``values`` from the outputs'
-    gradients ``grads`` (depth, normal, image, silhouette; empty where there is none)."""
+    gradients ``grads`` (depth, normal, image, silhouette; empty where there is none) and the
+    forward's ``silhouette`` (R,) (empty where the scene has none)."""
     m = _load_march()
     r = rays["hit"].shape[0]
     # The CPU kernel zeroes the gradient itself, grid by grid in the thread that fills it.
     grad = torch.empty_like(values) if backend == "cpu" else torch.zeros_like(values)
     common = [values, params, iparams, sparams, sflags, lights, rays["hit"], rays["points"], rays["directions"],
               rays["extreme"], rays["t_extreme"], rays["steps"], rays["cam_grid"], rays["pixel_angle"],
-              rays["eyes"], grads["depth"], grads["normal"], grads["image"], grads["silhouette"]]
+              rays["eyes"], grads["depth"], grads["normal"], grads["image"], grads["silhouette"], silhouette]
     if backend == "cpu":
         import numba
 

@@ -708,15 +708,21 @@ def _normalise(gx, gy, gz, params, sparams):
 
 
 @ray_helper
-def _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle):
-    """(coverage, -1 / (sigma * footprint)) of ray r: sigmoid(-f(x) / (sigma * footprint))."""
+def _silhouette_slope(r, t_extreme, pixel_angle, params, sparams):
+    """-1 / (sigma * footprint) of ray r: the soft silhouette is sigmoid(f(x) times this)."""
     foot = t_extreme[r] * pixel_angle
     if foot < params[FLOOR]:
         foot = params[FLOOR]
-    slope = -params[ONE] / (sparams[SP_SIGMA] * foot)
+    return -params[ONE] / (sparams[SP_SIGMA] * foot), foot
+
+
+@ray_helper
+def _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle):
+    """The soft coverage of ray r: sigmoid(-f(x) / (sigma * footprint))."""
+    _, foot = _silhouette_slope(r, t_extreme, pixel_angle, params, sparams)
     f = sample_sdf(values, b, extreme[r, 0], extreme[r, 1], extreme[r, 2], params, iparams)
     z = -f / (sparams[SP_SIGMA] * foot)
-    return params[ONE] / (params[ONE] + math.exp(-z)), slope
+    return params[ONE] / (params[ONE] + math.exp(-z))
 
 
 @ray_helper
@@ -730,7 +736,7 @@ def shade_ray(r, values, params, iparams, sparams, sflags, lights, hit, t, point
     if sflags[SF_SILHOUETTE] != 0:
         sil = zero
         if steps[r] > 0:
-            sil, _ = _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle[cam])
+            sil = _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle[cam])
         silhouette_out[r] = sil
     want_normal = sflags[SF_NORMAL] != 0
     want_image = sflags[SF_SHADING] != 0
@@ -774,7 +780,7 @@ def shade_ray(r, values, params, iparams, sparams, sflags, lights, hit, t, point
 @ray_helper
 def shade_ray_backward(r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme,
                        t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image,
-                       grad_silhouette):
+                       grad_silhouette, silhouette):
     """The gradient of ray r's stage 2 with respect to the SDF values it read, as the weights of
     three samplings: returns (p (3), dL/df(s), dL/dg (3), dL/df(x)): the hit point, and the
     gradients with respect to the SDF at the traced point s, the (unnormalised) gradient at p and
@@ -784,7 +790,9 @@ def shade_ray_backward(r, values, params, iparams, sparams, sflags, lights, hit,
     b = cam_grid[cam]
     g_sil = zero
     if sflags[SF_SILHOUETTE] != 0 and sflags[SF_GRAD_SILHOUETTE] != 0 and steps[r] > 0:
-        sil, slope = _silhouette(r, values, b, params, iparams, sparams, extreme, t_extreme, pixel_angle[cam])
+        # the forward's coverage: no second read of the samples at x
+        sil = silhouette[r]
+        slope, _ = _silhouette_slope(r, t_extreme, pixel_angle[cam], params, sparams)
         g_sil = grad_silhouette[r] * (sil * (params[ONE] - sil)) * slope
     px = py = pz = g_s = ggx = ggy = ggz = zero
     want_normal = sflags[SF_NORMAL] != 0
@@ -919,12 +927,12 @@ def shade_block(start, end, values, params, iparams, sparams, sflags, lights, hi
 @ray_function
 def shade_backward_block(start, end, values, params, iparams, sparams, sflags, lights, hit, points, directions,
                          extreme, t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal,
-                         grad_image, grad_silhouette, scratch):
+                         grad_image, grad_silhouette, silhouette, scratch):
     """``shade_ray_backward`` for rays start..end-1, its 8 results per ray into ``scratch``."""
     for r in range(start, end):
         px, py, pz, g_s, ggx, ggy, ggz, g_sil = shade_ray_backward(
             r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme, t_extreme,
-            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette, silhouette)
         scratch[r, 0] = px
         scratch[r, 1] = py
         scratch[r, 2] = pz
@@ -959,13 +967,13 @@ def shade_rays_cpu(values, params, iparams, sparams, sflags, lights, hit, t, poi
 @ray_function
 def backward_scatter_block(start, end, grad, values, params, iparams, sparams, sflags, lights, hit, points, directions,
                            extreme, t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal,
-                           grad_image, grad_silhouette):
+                           grad_image, grad_silhouette, silhouette):
     """``shade_ray_backward`` then ``scatter_ray`` for rays start..end-1, each ray's samples added
     while they are still in the cache."""
     for r in range(start, end):
         px, py, pz, g_s, ggx, ggy, ggz, g_sil = shade_ray_backward(
             r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme, t_extreme,
-            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette, silhouette)
         scatter_ray(r, grad, params, iparams, sparams, sflags, hit, points, extreme, steps, cam_grid, px, py, pz,
                     g_s, ggx, ggy, ggz, g_sil)
 
@@ -973,7 +981,7 @@ def backward_scatter_block(start, end, grad, values, params, iparams, sparams, s
 @njit(parallel=True, cache=True, error_model="numpy")
 def shade_rays_backward_cpu(values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme,
                             t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image,
-                            grad_silhouette, grids, scratch, grad):
+                            grad_silhouette, silhouette, grids, scratch, grad):
     """CPU kernel of stage 2's backward into ``grad`` (the flat gradient of the values, zeroed here:
     its contents on entry do not matter). The rays of
     grid g are a contiguous range (consecutive cameras see the same grid), so threads that each take
@@ -989,12 +997,12 @@ def shade_rays_backward_cpu(values, params, iparams, sparams, sflags, lights, hi
             grad[g * size:(g + 1) * size] = 0  # zeroed by the thread that adds into it: still cached then
             backward_scatter_block(g * per_grid, (g + 1) * per_grid, grad, values, params, iparams, sparams, sflags,
                                    lights, hit, points, directions, extreme, t_extreme, steps, cam_grid, pixel_angle,
-                                   eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+                                   eyes, grad_depth, grad_normal, grad_image, grad_silhouette, silhouette)
         return
     for blk in prange((n + BLOCK - 1) // BLOCK):
         shade_backward_block(blk * BLOCK, min(n, (blk + 1) * BLOCK), values, params, iparams, sparams, sflags,
                              lights, hit, points, directions, extreme, t_extreme, steps, cam_grid, pixel_angle,
-                             eyes, grad_depth, grad_normal, grad_image, grad_silhouette, scratch)
+                             eyes, grad_depth, grad_normal, grad_image, grad_silhouette, silhouette, scratch)
     for g in prange(grids):
         grad[g * size:(g + 1) * size] = 0
         scatter_block(g * per_grid, (g + 1) * per_grid, grad, params, iparams, sparams, sflags, hit, points,
@@ -1012,13 +1020,13 @@ def cuda_shade_body(values, params, iparams, sparams, sflags, lights, hit, t, po
 
 def cuda_shade_backward_body(values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme,
                              t_extreme, steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image,
-                             grad_silhouette, grad):
+                             grad_silhouette, silhouette, grad):
     """CUDA kernel body of stage 2's backward: one ray per thread, its gradients added atomically."""
     r = cuda.grid(1)
     if r < hit.shape[0]:
         px, py, pz, g_s, ggx, ggy, ggz, g_sil = shade_ray_backward(
             r, values, params, iparams, sparams, sflags, lights, hit, points, directions, extreme, t_extreme,
-            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette)
+            steps, cam_grid, pixel_angle, eyes, grad_depth, grad_normal, grad_image, grad_silhouette, silhouette)
         scatter_ray(r, grad, params, iparams, sparams, sflags, hit, points, extreme, steps, cam_grid, px, py, pz, g_s,
                     ggx, ggy, ggz, g_sil)
 

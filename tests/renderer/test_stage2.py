@@ -223,7 +223,7 @@ backward[(r + 31) // 32, 32](arr(values_), arr(params), arr(iparams), arr(sparam
                             arr(rays["hit"]), arr(rays["points"]), arr(rays["directions"]), arr(rays["extreme"]),
                             arr(rays["t_extreme"]), arr(rays["steps"]), arr(rays["cam_grid"]),
                             arr(rays["pixel_angle"]), arr(rays["eyes"]), ones("d", None), ones("n", 3) * 0.3,
-                            ones("i", 2) * 0.7, ones("s", None), grad)
+                            ones("i", 2) * 0.7, ones("s", None), outs["silhouette"], grad)
 print(json.dumps({
     "hits": int(trace.hit.sum()),
     "depth": float(np.abs(outs["depth"] - d.detach().numpy().reshape(-1)).max()),
@@ -268,7 +268,7 @@ def test_cuda_stage2_kernels_compile_to_ptx(dtype, monkeypatch):
                 a(f, 2))
     fwd_sig = common + rays_fwd + (a(f, 1), a(f, 2), a(f, 2), a(f, 1))
     rays_bwd = (a(types.uint8, 1), a(f, 2), a(f, 2), a(f, 2), a(f, 1), a(types.int32, 1), a(i64, 1), a(f, 1), a(f, 2))
-    bwd_sig = common + rays_bwd + (a(f, 1), a(f, 2), a(f, 2), a(f, 1), a(f, 1))
+    bwd_sig = common + rays_bwd + (a(f, 1), a(f, 2), a(f, 2), a(f, 1), a(f, 1), a(f, 1))
     for body, sig in ((raymarch.cuda_shade_body, fwd_sig), (raymarch.cuda_shade_backward_body, bwd_sig)):
         ptx, _ = cuda.compile_ptx(body, sig, cc=(8, 0))
         assert ".entry" in ptx
