@@ -10,6 +10,7 @@ run as one numba operation (``sdfcommon.band_kernel``); the torch path here is i
 """
 from __future__ import annotations
 
+import functools
 from typing import Optional
 
 import torch
@@ -48,18 +49,29 @@ def narrow_band(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.
 
 def band_vertices(sdf: torch.Tensor, voxel_size: float, mu: Optional[float]) -> tuple[Optional[torch.Tensor], float]:
     """Flat indices (K,) into ``sdf.reshape(-1)`` of the interior vertices in the band (every
-    interior vertex for ``mu=None``; None when there is none), and the checked voxel size."""
+    interior vertex for ``mu=None``: a cached tensor, not to be changed in place; None when there
+    is none), and the checked voxel size."""
     check_grid(sdf)
     h = check_positive(voxel_size, "voxel_size")
     b, nx, ny, nz = sdf.shape
-    interior = sdf[:, 1:-1, 1:-1, 1:-1]
     if mu is None:
-        idx = torch.ones(interior.shape, dtype=torch.bool, device=sdf.device).nonzero()
-    else:
-        idx = narrow_band(interior, h, mu).nonzero()
+        return _interior_vertices(tuple(sdf.shape), sdf.device), h
+    idx = narrow_band(sdf[:, 1:-1, 1:-1, 1:-1], h, mu).nonzero()
     if idx.shape[0] == 0:
         return None, h
     return ((idx[:, 0] * nx + idx[:, 1] + 1) * ny + idx[:, 2] + 1) * nz + idx[:, 3] + 1, h
+
+
+@functools.lru_cache(maxsize=16)
+def _interior_vertices(shape: tuple[int, int, int, int], device: torch.device) -> Optional[torch.Tensor]:
+    """Flat indices of every interior vertex of grids of ``shape`` (None if there is none), made
+    once per shape (multi-view reconstruction asks for them at every update of a level)."""
+    b, nx, ny, nz = shape
+    if min(nx, ny, nz) < 3:
+        return None
+    i, j, k = (torch.arange(1, n - 1, device=device) for n in (nx, ny, nz))
+    flat = ((i[:, None, None] * ny + j[None, :, None]) * nz + k[None, None, :]).reshape(-1)
+    return (torch.arange(b, device=device)[:, None] * (nx * ny * nz) + flat[None, :]).reshape(-1)
 
 
 def _band_stencil(sdf: torch.Tensor, voxel_size: float, mu: Optional[float]) -> tuple[Optional[torch.Tensor], float]:

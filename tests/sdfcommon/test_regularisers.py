@@ -177,3 +177,15 @@ def test_bad_input_names_the_argument():
         laplacian_loss(sdf, 0.1, mu=-1)
     with pytest.raises(ValueError, match="sdf"):
         eikonal_loss(torch.zeros(4, 4, 4), 0.1)
+
+
+def test_every_interior_vertex_is_listed_once_and_cached():
+    """band_vertices(mu=None): the interior vertices in order, the same tensor for the same shape."""
+    from sdfcommon.regularisers import band_vertices
+
+    sdf = torch.randn(2, 5, 6, 7)
+    got, _ = band_vertices(sdf, 0.1, None)
+    b, i, j, k = torch.meshgrid(*(torch.arange(n) for n in (2, 5, 6, 7)), indexing="ij")
+    inner = (i > 0) & (i < 4) & (j > 0) & (j < 5) & (k > 0) & (k < 6)
+    assert torch.equal(got, inner.reshape(-1).nonzero().squeeze(1))
+    assert band_vertices(torch.zeros(2, 5, 6, 7), 0.2, None)[0] is got
