@@ -73,7 +73,7 @@ class SDFGrid:
         if min(values.shape[1:]) < 2:
             raise ValueError(f"values needs at least 2 samples per axis, got {tuple(values.shape[1:])}")
         require_finite(values, "values")
-        self._checked_version = _version(values)  # what require_finite saw (see ``unchanged_since_checked``)
+        self._checked = (values, _version(values))  # what require_finite saw (see ``unchanged_since_checked``)
         self.values = values
         # The box is checked and kept on the host too (``host_box``): the kernels' parameters are
         # made from it without waiting for the GPU.
@@ -154,8 +154,8 @@ class SDFGrid:
     def unchanged_since_checked(self) -> bool:
         """Whether ``values`` is still the tensor this grid checked for NaN/Inf when it was built, with
         no in-place change since (torch counts them in ``Tensor._version``), so the check still holds."""
-        checked = getattr(self, "_checked_version", None)
-        return checked is not None and checked == _version(self.values)
+        tensor, version = getattr(self, "_checked", (None, None))
+        return tensor is self.values and version is not None and version == _version(self.values)
 
     def detach(self) -> "SDFGrid":
         """The same grid cut from autograd: ``values.detach()`` (shares memory, no copy) and the

@@ -282,6 +282,9 @@ def test_an_unchanged_grid_is_not_checked_again_at_render(monkeypatch):
     grid.values.mul_(1.0)
     render(grid, cams, ALL)
     assert checked == ["grid.values"]
+    grid.values = torch.full_like(grid.values, float("nan"))  # another tensor, never checked
+    with pytest.raises(ValueError, match="grid.values contains NaN or Inf"):
+        render(grid, cams, ALL)
 
 
 def test_grids_of_inference_tensors_are_checked_at_every_render():
