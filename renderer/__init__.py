@@ -1,7 +1,10 @@
 """A differentiable renderer for signed distance fields sampled on grids (SDFDiff, CVPR 2020).
 
 Sphere tracing finds where rays meet the surface without gradients; only the local shading at the
-hits (and the soft silhouettes) is differentiable, in plain PyTorch.
+hits (and the soft silhouettes) is differentiable. Both stages run as fused numba kernels (CPU or
+CUDA, ``renderer.kernels``, ``renderer.stage2``) where available; their plain-PyTorch versions
+(``renderer.reference``, ``renderer.shading``) are the specification, used by
+``backend="reference"`` and as the fallback.
 
     >>> import torch, renderer
     >>> grid = renderer.SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 64)
