@@ -44,15 +44,14 @@ def can_fuse(trace: TraceResult, scene: Scene) -> bool:
 
 @dataclass
 class _Launch:
-    """What the kernels need beside the grid values (all on the grid's device)."""
+    """What the kernels need beside the grid values (on the grid's device unless noted)."""
 
     backend: str
     params: torch.Tensor
     iparams: torch.Tensor
     sparams: torch.Tensor
-    sflags: torch.Tensor
     lights: torch.Tensor
-    sflags_host: torch.Tensor  # sflags on the CPU, for the backward's copy with its gradient flags
+    sflags_host: torch.Tensor  # on the CPU (the backward sets its gradient flags in a copy)
     rays: dict
     grids: int
     channels: int
@@ -77,7 +76,8 @@ class _FusedStage2(torch.autograd.Function):
             "image": torch.empty(r if want["image"] else 0, launch.channels, dtype=dt, device=dev),
             "silhouette": torch.empty(r if want["silhouette"] else 0, dtype=dt, device=dev),
         }
-        kernels.shade_forward(launch.backend, flat, launch.params, launch.iparams, launch.sparams, launch.sflags,
+        kernels.shade_forward(launch.backend, flat, launch.params, launch.iparams, launch.sparams,
+                              kernels._on_device(launch.sflags_host, dev),
                               launch.lights, launch.rays, outputs)
         ctx.save_for_backward(values, outputs["silhouette"])  # the backward reads the coverage back
         ctx.launch = launch
@@ -147,7 +147,7 @@ def shade_trace_fused(grid: SDFGrid, cameras: Cameras, trace: TraceResult, scene
     }
     want = {"depth": scene.wants("depth"), "normal": scene.wants("normal"), "image": scene.wants("shading"),
             "silhouette": scene.wants("silhouette")}
-    launch = _Launch(backend, params, iparams, sparams, kernels._on_device(sflags_host, dev), lights, sflags_host, rays,
+    launch = _Launch(backend, params, iparams, sparams, lights, sflags_host, rays,
                      grid.batch_size, scene.channels, want)
     depth, normal, image, silhouette = _FusedStage2.apply(grid.values, launch)
     return (depth.view(b, h, w) if scene.wants("depth") else None,

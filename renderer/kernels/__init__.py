@@ -18,6 +18,7 @@ pool was already started or the user chose a layer (``NUMBA_THREADING_LAYER``): 
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import tempfile
@@ -88,10 +89,28 @@ def _start_thread_pool() -> None:
         return
     if "NUMBA_THREADING_LAYER" not in os.environ and str(numba.config.THREADING_LAYER) == "default":
         numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+    with _keeping_torch_threads():
+        numba.get_num_threads()  # starts the pool now, with that layer
+
+
+@contextlib.contextmanager
+def _keeping_torch_threads():
+    """Restores torch's thread count after the block: on the shared OpenMP runtime, starting
+    numba's "omp" pool or launching a kernel sets the count torch reads to numba's own."""
     threads = torch.get_num_threads()
-    numba.get_num_threads()  # starts the pool now, with that layer
-    if torch.get_num_threads() != threads:  # the "omp" pool set the shared runtime's count to its own
-        torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        if torch.get_num_threads() != threads:
+            torch.set_num_threads(threads)
+
+
+def _kernel_threads() -> int:
+    """The threads a CPU kernel runs with: torch's count (``torch.set_num_threads`` governs both),
+    within numba's pool."""
+    import numba
+
+    return min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)
 
 
 def start_cpu_thread_pool() -> None:
@@ -168,12 +187,9 @@ def _shade_one_ray_on_gpu() -> None:
     from ..stage2 import shade_trace_fused
     from ..trace import sphere_trace
 
-    dev = torch.device("cuda", torch.cuda.current_device())
-    axis = torch.linspace(-1.0, 1.0, 8, device=dev)
-    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
-    values = ((x * x + y * y + z * z).sqrt() - 0.5)[None].requires_grad_(True)
-    grid = SDFGrid(values)
-    cams = Cameras.look_at([[0.0, 0.0, 3.0]], fov_deg=1.0, image_size=1, device=dev)
+    grid = _sphere_grid_on_gpu()
+    values = grid.values.requires_grad_(True)
+    cams = Cameras.look_at([[0.0, 0.0, 3.0]], fov_deg=1.0, image_size=1, device=grid.device)
     depth, _, silhouette, image = shade_trace_fused(grid, cams, sphere_trace(grid, cams, backend="cuda"), Scene(),
                                                     "cuda")
     (depth.sum() + silhouette.sum() + image.sum()).backward()
@@ -182,15 +198,22 @@ def _shade_one_ray_on_gpu() -> None:
         raise RuntimeError(f"a one-ray render came back wrong (depth {d:.4f}, expected ~2.5)")
 
 
+def _sphere_grid_on_gpu() -> SDFGrid:
+    """An 8^3 grid of a sphere of radius 0.5 over [-1, 1]^3 (float32) on the current GPU, for the
+    one-ray probes above and below."""
+    dev = torch.device("cuda", torch.cuda.current_device())
+    axis = torch.linspace(-1.0, 1.0, 8, device=dev)
+    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
+    return SDFGrid(((x * x + y * y + z * z).sqrt() - 0.5)[None])
+
+
 def _march_one_ray_on_gpu() -> None:
     """Marches one ray into an 8^3 sphere grid (radius 0.5) on the current GPU (float32): the kernel
     is compiled (or loaded from the disk cache) and run, so a CUDA toolchain that cannot build it is
     found here, where ``backend="auto"`` can still fall back, rather than in the first render. The
     ray from z = 3 down the axis must hit near t = 2.5."""
-    dev = torch.device("cuda", torch.cuda.current_device())
-    axis = torch.linspace(-1.0, 1.0, 8, device=dev)
-    x, y, z = torch.meshgrid(axis, axis, axis, indexing="ij")
-    grid = SDFGrid(((x * x + y * y + z * z).sqrt() - 0.5)[None])
+    grid = _sphere_grid_on_gpu()
+    dev = grid.device
     origin = torch.tensor([[0.0, 0.0, 3.0]], device=dev)
     direction = torch.tensor([[0.0, 0.0, -1.0]], device=dev)
     out = _run("cuda", grid, origin, direction, torch.zeros(1, dtype=torch.int64, device=dev),
@@ -375,17 +398,9 @@ def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], 
         # workqueue pool (see _start_thread_pool) aborts the process on concurrent launches from
         # several Python threads.
         arrays = [x.numpy() if isinstance(x, torch.Tensor) else x for x in tensors]
-        with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK_BLOCKS):
-            # The kernels use torch's thread count (``torch.set_num_threads`` governs both), and
-            # torch keeps it: on the shared OpenMP runtime a numba launch sets the count torch
-            # reads to numba's own.
-            threads = torch.get_num_threads()
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-            try:
-                cpu_kernel(*arrays)
-            finally:
-                if torch.get_num_threads() != threads:
-                    torch.set_num_threads(threads)
+        with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK_BLOCKS), _keeping_torch_threads():
+            numba.set_num_threads(_kernel_threads())
+            cpu_kernel(*arrays)
         return
     from numba import cuda
 
@@ -400,10 +415,6 @@ def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], 
         cuda_kernel[blocks, CUDA_THREADS_PER_BLOCK, stream](*arrays)
 
 
-def _cuda_shade_kernel(which: int):
-    return None if not torch.cuda.is_available() else _load_march().make_cuda_shade_kernels()[which]
-
-
 def shade_forward(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: torch.Tensor,
                   sparams: torch.Tensor, sflags: torch.Tensor, lights: torch.Tensor, rays: dict,
                   outputs: dict) -> None:
@@ -414,8 +425,10 @@ def shade_forward(backend: str, values: torch.Tensor, params: torch.Tensor, ipar
                rays["directions"], rays["extreme"], rays["t_extreme"], rays["steps"], rays["cam_grid"],
                rays["pixel_angle"], rays["eyes"], outputs["depth"], outputs["normal"], outputs["image"],
                outputs["silhouette"]]
-    kernel = m.shade_rays_cpu if backend == "cpu" else _cuda_shade_kernel(0)
-    _launch(backend, kernel, kernel, tensors, rays["hit"].shape[0])
+    if backend == "cpu":
+        _launch("cpu", m.shade_rays_cpu, None, tensors, rays["hit"].shape[0])
+    else:
+        _launch("cuda", None, m.make_cuda_shade_kernels()[0], tensors, rays["hit"].shape[0])
 
 
 def shade_backward(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: torch.Tensor,
@@ -432,13 +445,11 @@ def shade_backward(backend: str, values: torch.Tensor, params: torch.Tensor, ipa
               rays["extreme"], rays["t_extreme"], rays["steps"], rays["cam_grid"], rays["pixel_angle"],
               rays["eyes"], grads["depth"], grads["normal"], grads["image"], grads["silhouette"], silhouette]
     if backend == "cpu":
-        import numba
-
         # Whole grids per thread when there are enough of them to share out (see the kernel).
-        one_pass = grids >= 2 * numba.get_num_threads()
+        one_pass = grids >= 2 * _kernel_threads()
         scratch = torch.empty(0 if one_pass else r, 8, dtype=values.dtype)
         _launch("cpu", m.shade_rays_backward_cpu, None,
                 common + [grids, scratch, grad], r)
     else:
-        _launch("cuda", None, _cuda_shade_kernel(1), common + [grad], r)
+        _launch("cuda", None, m.make_cuda_shade_kernels()[1], common + [grad], r)
     return grad
