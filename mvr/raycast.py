@@ -85,7 +85,6 @@ class TriangleGrid:
         return RayHits(hit=hit, t=t, face=face, barycentric=bary)
 
 
-
 class EmbreeCaster:
     """First hits by Intel Embree (``trimesh.ray.ray_pyembree``; needs the ``embreex`` package).
 
@@ -162,6 +161,7 @@ def _checked_rays(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarr
     if o.shape != d.shape:
         raise ValueError(f"origins {o.shape} and directions {d.shape} must have the same shape")
     return o, d
+
 
 @numba.njit(cache=True)
 def _triangle_cells(tri, lo, cell, dims):

@@ -53,8 +53,9 @@ def configure_runtime(threads: Optional[int] = None, tune_malloc: bool = True, f
         import numba
 
         # Setting numba's thread count starts its thread pool: let the renderer's kernels start
-        # it first, with the pool they choose (see renderer/kernels: GNU OpenMP's spinning
-        # workers slowed the PyTorch code after each march on shared machines).
+        # it first, with the layer they choose (renderer.start_cpu_thread_pool: torch's own
+        # OpenMP runtime). The renderer's kernels run with torch's count; this sets it for numba's
+        # other parallel kernels (the fallback ray caster).
         import renderer
 
         renderer.backend_available("cpu")
