@@ -35,7 +35,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from benchmarks.report import atomic_write_text, load_average, machine_info, run_mvr
+from benchmarks.report import load_average, machine_info, run_mvr
 
 CONFIGS = {"default": (), "paper": ("mvr/preset=paper",)}
 # Paper section 5, symmetric Hausdorff relative to the bounding box (SPEC.md section 2).
@@ -308,9 +308,10 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
         src = out / "default" / row["mesh"] / "errors.png"
         if row["config"] == "default" and src.is_file():
             dst = docs / f"mvr_errors_{row['mesh']}.png"
-            shutil.copyfile(src, dst)
+            with outputs.atomic_path(dst) as tmp:  # the docs copy is written whole or not at all
+                shutil.copyfile(src, tmp)
             pictures.append(f"![{row['mesh']}]({dst.name})")
-    atomic_write_text(docs / "mvr_real_scans.md", text + "\n" + "\n\n".join(pictures)
+    outputs.write_text(docs / "mvr_real_scans.md", text + "\n" + "\n\n".join(pictures)
                       + "\n\nMachine:\n\n" + machine_info() + "\n")
 
 
