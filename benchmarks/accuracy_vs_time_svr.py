@@ -1,7 +1,7 @@
 """The single-view part of the accuracy-versus-time study: validation IoU against training time
 for the model width, the refiner (on/off) and the number of supervised views per object.
 
-Each run is ``svr.training.train`` on configs/train.yaml with hydra overrides: a small procedural
+Each run is ``svr.training.stages.train`` on configs/train.yaml with hydra overrides: a small procedural
 dataset (generated once into ``<work>/svr_cache``), a fixed step budget (the coarse stage, then
 the refine stage; the joint stage is left out), and the setting varied. One run gives two points:
 after its coarse stage (refiner off: ``stage.schedule=[coarse]`` trains exactly that stage) and
@@ -121,7 +121,7 @@ def run_overrides(run: Run, data: Sequence[str], steps: tuple[int, int], val_eve
 
 def compose_train(overrides: Sequence[str]):
     """configs/train.yaml composed with overrides, outside a hydra run."""
-    from sdfcommon.cli import compose
+    from sdfcommon.tooling.commands import compose
 
     return compose("train", overrides)
 
@@ -146,7 +146,7 @@ def measure(run: Run, work: Path, data: Sequence[str], steps: tuple[int, int], v
     """Trains one run afresh; a Point per stage (after coarse, after refine; seconds: training CPU
     seconds without validation; error: 1 - the stage's best validation IoU) and its curve of
     (training CPU seconds, 1 - IoU) at each validation."""
-    from svr.training import train
+    from svr.training.stages import train
 
     run_dir = work / "svr" / run.label.replace(" ", "_")
     if run_dir.exists():
@@ -205,7 +205,7 @@ def run(out_dir: Path, work: Path, quick: bool = False, steps: Optional[tuple[in
     cats = QUICK_CATEGORIES if quick else CATEGORIES
     d = next(r for r in runs(quick) if r.default)
     intro = (
-        f"`svr.training.train` (configs/train.yaml) on a small procedural dataset: {len(cats)} categories "
+        f"`svr.training.stages.train` (configs/train.yaml) on a small procedural dataset: {len(cats)} categories "
         f"({', '.join(cats)}), {'2' if quick else '8'} training and {'1' if quick else '2'} validation objects per "
         f"category, 24 views each, `data.supersample=1`, batch of {'2' if quick else '8'} objects (made once and "
         f"cached; not counted). Every run: {steps[0]} coarse steps then {steps[1]} refine steps "

@@ -77,7 +77,7 @@ def prepare_meshes(folder: Path, names: Sequence[str], work: Path, max_hole_edge
     import trimesh
 
     from mvr import MESH_FORMATS
-    from sdfcommon import outputs
+    from sdfcommon.tooling import outputs
 
     if not folder.is_dir():
         raise ValueError(f"mesh folder {str(folder)!r} is not a folder")
@@ -146,7 +146,7 @@ def write_error_picture(run_dir: Path, overrides: Sequence[str], error_scale: fl
     from mvr.__main__ import compose_config, reconstruct_kwargs
     from mvr.error_map import error_picture
     from mvr.reconstruct import default_scene
-    from sdfcommon import outputs
+    from sdfcommon.tooling import outputs
 
     kw = reconstruct_kwargs(compose_config(["target=unused", "out_dir=unused", *overrides]))
     recon = trimesh.load(str(run_dir / "mesh.ply"), force="mesh", process=False)
@@ -270,7 +270,7 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
                  goal: float, error_scale: float) -> None:
     """OUT/table.md, table.csv, results.json; and DOCS/mvr_real_scans.md with the default
     configuration's error pictures copied beside it."""
-    from sdfcommon import outputs
+    from sdfcommon.tooling import outputs
 
     table = markdown_table(rows, configs)
     outputs.write_csv(out / "table.csv", list(rows), COLUMNS)
@@ -332,8 +332,8 @@ def main(argv: Optional[list[str]] = None) -> None:
     args = ap.parse_args(argv)
     from mvr import SHAPES, configure_runtime
     from mvr.__main__ import compose_config
-    from sdfcommon.cli import config_value
-    from sdfcommon.outputs import ensure_output_dir
+    from sdfcommon.tooling.commands import config_value
+    from sdfcommon.tooling.outputs import ensure_output_dir
 
     try:
         unknown = [s for s in args.shapes if s not in SHAPES]

@@ -1,4 +1,4 @@
-"""The bar a model must clear on the procedural benchmark: every baseline of ``svr.baselines`` (mean
+"""The bar a model must clear on the procedural benchmark: every baseline of ``svr.evaluation.baselines`` (mean
 shape, category mean shape, retrieval, the oracle) on a split of a procedural preset, per category,
 with no model needed (the oracle samples the exact shapes on a 64^3 grid over [-0.6, 0.6]^3, the
 default models' grid).
@@ -42,10 +42,10 @@ def baseline_table(preset: str = "bench", split: str = "test", cache_dir: Option
     """
     from hydra.utils import instantiate
 
-    from sdfcommon.cli import compose
-    from svr.baselines import BASELINES, LABELS, score_baselines
-    from svr.report import EvaluationResult
-    from svr.metrics import iou_table
+    from sdfcommon.tooling.commands import compose
+    from svr.evaluation.baselines import BASELINES, LABELS, score_baselines
+    from svr.evaluation.tables import EvaluationResult
+    from svr.evaluation.metrics import iou_table
 
     extra = [f"data.cache_dir={cache_dir}"] if cache_dir is not None else []
     cfg = compose("eval", [f"data={PRESETS[preset]}", f"data.progress={progress}", *extra, *overrides])

@@ -52,7 +52,7 @@ import torch
 
 import renderer
 from renderer import Cameras, Scene, SDFGrid, render, shade_trace, sphere_trace
-from sdfcommon.outputs import write_text
+from sdfcommon.tooling.outputs import write_text
 
 ROOT = Path(__file__).resolve().parents[1]
 

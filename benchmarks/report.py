@@ -37,8 +37,8 @@ def pareto_front(points: Sequence[Point]) -> list[bool]:
 
 
 def atomic_write_text(path: Path, text: str) -> None:
-    """Writes UTF-8 text to ``path`` atomically (``sdfcommon.outputs.write_text``)."""
-    from sdfcommon.outputs import write_text
+    """Writes UTF-8 text to ``path`` atomically (``sdfcommon.tooling.outputs.write_text``)."""
+    from sdfcommon.tooling.outputs import write_text
 
     write_text(path, text)
 
@@ -71,7 +71,7 @@ def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, 
         curves: optional thin lines behind the points, label -> [(seconds, error), ...] (e.g. a
             training run's validation error over time; its end is usually the run's point).
     """
-    from sdfcommon.outputs import atomic_write
+    from sdfcommon.tooling.outputs import atomic_write
 
     import matplotlib
 

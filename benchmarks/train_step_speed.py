@@ -129,7 +129,7 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     from hydra.utils import instantiate
 
     from svr import losses
-    from svr.training import build_module
+    from svr.training.stages import build_module
 
     device = torch.device(device_name)
     with initialize_config_dir(config_dir=str(Path(sys.modules["svr"].__file__).resolve().parents[1] / "configs"),
@@ -209,9 +209,9 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
 
             fns[f"step {stage}"] = step
     results: dict[str, dict[str, float]] = {name: {"peak_mib": measure_memory(fn, device)} for name, fn in fns.items()}
-    try:  # what svr.training.train does first, where the checkout has it (older ones: svr.host_memory)
+    try:  # what svr.training.stages.train does first, where the checkout has it (older ones: svr.host_memory)
         try:
-            from sdfcommon.host_memory import keep_freed_memory
+            from sdfcommon.tooling.host_memory import keep_freed_memory
         except ImportError:
             from svr.host_memory import keep_freed_memory
     except ImportError:

@@ -5,7 +5,7 @@
 
 Object j of a row is ``make_shape(category, [seed, j], style=styles[j % len(styles)])``, so a
 row shows every style once before it repeats one. Each object is rendered like the dataset
-(``svr.data.procedural.render_shape``, at 128 px) from one NMR view (3 by default: azimuth -45
+(``svr.data.procedural.generator.render_shape``, at 128 px) from one NMR view (3 by default: azimuth -45
 degrees, a three-quarter view of the front). Prints the path of the PNG.
 """
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from svr.data.categories import NMR_PROCEDURAL_CATEGORIES, make_shape, procedural_category  # noqa: E402
+from svr.data.procedural.categories import NMR_PROCEDURAL_CATEGORIES, make_shape, procedural_category  # noqa: E402
 
 DEFAULT_OUT = REPO / "docs" / "procedural_categories.png"
 IMAGE_SIZE = 128
@@ -42,8 +42,8 @@ def category_sheet(out: str | Path = DEFAULT_OUT, categories: Optional[Sequence[
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sdfcommon.outputs import atomic_write
-    from svr.data.procedural import render_shape
+    from sdfcommon.tooling.outputs import atomic_write
+    from svr.data.procedural.generator import render_shape
 
     if not isinstance(per_category, int) or per_category < 1:
         raise ValueError(f"per_category must be a positive int, got {per_category!r}")

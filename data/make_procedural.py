@@ -21,7 +21,7 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from svr.data.procedural import (ALL_CATEGORIES, VOXEL_RULES, ProceduralSettings, default_workers,  # noqa: E402
+from svr.data.procedural.generator import (ALL_CATEGORIES, VOXEL_RULES, ProceduralSettings, default_workers,  # noqa: E402
                                  ensure_procedural_dataset, generate_procedural_dataset)
 
 PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<name>.yaml
@@ -29,7 +29,7 @@ PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<n
 
 def preset_settings(name: str) -> dict:
     """The dataset settings of a data preset, as hydra composes ``data=<preset>`` for training."""
-    from sdfcommon.cli import compose
+    from sdfcommon.tooling.commands import compose
 
     cfg = compose("eval", [f"data={PRESETS[name]}"]).data
     return {"categories": cfg.categories or (), "train": cfg.train, "val": cfg.val, "test": cfg.test,

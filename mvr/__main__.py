@@ -8,7 +8,7 @@ this ``main``, with the same overrides. Benchmarks reuse ``compose_config`` and
 Errors in settings or files (missing, empty or non-watertight mesh, unknown shape, a rerun into an
 out_dir of other settings, a corrupt level checkpoint, ``optim.lr=fast``) are one line
 ``sdfdiff-mvr: error: ...`` with exit status 2, and a refused run leaves out_dir as it was
-(``sdfcommon.cli``).
+(``sdfcommon.tooling.commands``).
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from typing import Sequence
 
 from omegaconf import DictConfig
 
-from sdfcommon.cli import compose, config_bool, config_int, config_object, config_value, hydra_entry
+from sdfcommon.tooling.commands import compose, config_bool, config_int, config_object, config_value, hydra_entry
 
 # The settings nodes (each a ``_target_``) and the keyword of ``mvr.reconstruct`` they become.
 SETTINGS_NODES = {"rig": "rig", "grid": "grid", "target_settings": "target_settings", "schedule": "schedule",
@@ -28,7 +28,7 @@ SETTINGS_NODES = {"rig": "rig", "grid": "grid", "target_settings": "target_setti
 def reconstruct_kwargs(cfg: DictConfig) -> dict:
     """The keyword arguments of ``mvr.reconstruct`` (all but target and out_dir), instantiated
     from a composed mvr config (``_target_`` nodes -> plain objects, their values checked against
-    the settings' field types first: ``sdfcommon.cli.config_object``)."""
+    the settings' field types first: ``sdfcommon.tooling.commands.config_object``)."""
     kwargs = {name: config_object(cfg, key, _convert_="all") for key, name in SETTINGS_NODES.items()}
     return dict(kwargs, backend=str(config_value(cfg, "backend")), seed=config_int(cfg, "seed"),
                 resume=config_bool(cfg, "resume"), progress=config_bool(cfg, "progress"))

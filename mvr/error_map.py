@@ -88,8 +88,8 @@ def error_picture(target: trimesh.Trimesh, recon: trimesh.Trimesh, cameras: Came
                   vmax: float, view_names: Sequence[str]) -> np.ndarray:
     """The two rows (target coloured by its distance to the reconstruction, reconstruction by its
     distance to the target) over the views, labelled: an (H', W', 3) float32 array
-    (``sdfcommon.pictures.labelled_grid``)."""
-    from sdfcommon.pictures import labelled_grid
+    (``sdfcommon.tooling.pictures.labelled_grid``)."""
+    from sdfcommon.tooling.pictures import labelled_grid
 
     if len(view_names) != cameras.batch_size:
         raise ValueError(f"need {cameras.batch_size} view names, got {len(view_names)}")

@@ -1,5 +1,5 @@
 """The data terms of multi-view reconstruction (paper section 5.1): pure functions. The eikonal and
-Laplacian regularisers are shared with single-view training (``sdfcommon.regularisers``).
+Laplacian regularisers are shared with single-view training (``sdfcommon.numerics.regularisers``).
 
 All terms are means (over pixels; the regularisers over grid vertices), so their balance does not
 change with the image or grid resolution; the paper's sums differ from them by constant factors that the weights

@@ -17,7 +17,7 @@ import torch
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 
-from sdfcommon.regularisers import band_regularisers
+from sdfcommon.numerics.regularisers import band_regularisers
 
 from .losses import view_image_losses, view_silhouette_losses
 
@@ -202,7 +202,7 @@ class ViewLosses:
 
     def regulariser(self, grid: SDFGrid) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Weighted eikonal + Laplacian terms, and the two unweighted terms: the shared regularisers
-        (``sdfcommon.regularisers``) at every interior vertex of the grid (``mu=None``). The eikonal
+        (``sdfcommon.numerics.regularisers``) at every interior vertex of the grid (``mu=None``). The eikonal
         term stays a mean over all the grid's vertices, the box faces (no central difference there)
         counting zero, so its weight per vertex is what it was when the faces had one-sided
         differences; a mean over the interior alone weighs each vertex (N / (N - 2))^3 more, 2.4x at

@@ -12,7 +12,7 @@
     settings.json       every setting of the run
     checkpoints/level_XX.pt   the grid after each finished level (a rerun resumes after the last)
 
-Every file is written atomically (sdfcommon.outputs).
+Every file is written atomically (sdfcommon.tooling.outputs).
 """
 from __future__ import annotations
 
@@ -28,9 +28,9 @@ import numpy as np
 import torch
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
-from sdfcommon import outputs
-from sdfcommon.geometry import sdf_to_mesh
-from sdfcommon.serialization import load_torch
+from sdfcommon.tooling import outputs
+from sdfcommon.numerics.meshing import sdf_to_mesh
+from sdfcommon.tooling.serialization import load_torch
 
 from .metrics import NORMALISATION, surface_distances
 from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
@@ -180,8 +180,8 @@ def _comparison_image(targets: torch.Tensor, renders: torch.Tensor, views: Seque
                       margin: int = 4) -> np.ndarray:
     """Rows target / render / |difference| of (K, H, W, C) images, one column per view of ``views``
     (K indices, the column labels), cropped to the pixels where either image differs from its corner
-    pixel (the background); a labelled (H', W', 3) array (``sdfcommon.pictures.labelled_grid``)."""
-    from sdfcommon.pictures import labelled_grid
+    pixel (the background); a labelled (H', W', 3) array (``sdfcommon.tooling.pictures.labelled_grid``)."""
+    from sdfcommon.tooling.pictures import labelled_grid
 
     background = targets[:, :1, :1, :]
     busy = ((targets - background).abs().amax(dim=(0, 3)) > 0) | ((renders - background).abs().amax(dim=(0, 3)) > 0)

@@ -12,7 +12,7 @@ measured on one such machine: docs/measurements.md):
   fresh ``mmap`` and returns it to the OS when freed, so each backward pass, which allocates many
   grid-sized (1 MiB at 64^3) gradient buffers, can page-fault them in again. Raising glibc's mmap
   and trim thresholds and its top pad (``mallopt``, ``tune_allocator``) keeps freed memory in the
-  heap for reuse (``sdfcommon.host_memory``, shared with single-view training).
+  heap for reuse (``sdfcommon.tooling.host_memory``, shared with single-view training).
 * Denormal floats: Adam's second moments of the tiny gradients that far-away grid values receive
   underflow into denormals, which x86 CPUs process far more slowly than normal floats; flushing
   them to zero (FTZ/DAZ, ``torch.set_flush_denormal``, for the calling thread) makes an update at
@@ -25,7 +25,7 @@ from typing import Optional
 
 import torch
 
-from sdfcommon.host_memory import tune_allocator
+from sdfcommon.tooling.host_memory import tune_allocator
 
 def available_cores() -> int:
     """The CPU cores this process may run on (its affinity mask; ``os.cpu_count()`` where the

@@ -25,7 +25,7 @@ import torch
 import trimesh
 
 from renderer import Cameras, Scene, shade_lambert
-from sdfcommon.geometry import sdf_to_mesh
+from sdfcommon.numerics.meshing import sdf_to_mesh
 
 from .raycast import EmbreeCaster, TriangleGrid, mesh_caster
 from .shapes import SHAPES

@@ -1,13 +1,13 @@
 """What the applications (svr, mvr) share, below both: never imports svr or mvr.
 
-* ``sdfcommon.cli``: the one shape of every hydra entry point (``hydra_entry``), its error
+* ``sdfcommon.tooling.commands``: the one shape of every hydra entry point (``hydra_entry``), its error
   handling (a user's mistake -> one line ``<prog>: error: <message>``, exit status 2), the clean-up
   of a failed run's folder, and validated config getters (``config_int``, ``config_float``, ...).
-* ``sdfcommon.checks``: argument checks that name the argument (``check_int``, ``check_float``,
+* ``sdfcommon.tooling.checks``: argument checks that name the argument (``check_int``, ``check_float``,
   ``check_field_types``), for the Python APIs and the config getters alike.
-* ``sdfcommon.serialization``: ``load_torch``, a tensors-and-values-only ``torch.load`` whose errors
+* ``sdfcommon.tooling.serialization``: ``load_torch``, a tensors-and-values-only ``torch.load`` whose errors
   name the file and never advise ``weights_only=False``.
-* ``sdfcommon.processes``: worker processes that die with their parent (``process_pool``).
-* ``sdfcommon.pictures``: pictures people read (``labelled_grid``: tiles with labelled rows and
+* ``sdfcommon.tooling.processes``: worker processes that die with their parent (``process_pool``).
+* ``sdfcommon.tooling.pictures``: pictures people read (``labelled_grid``: tiles with labelled rows and
   columns).
 """

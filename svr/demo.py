@@ -10,10 +10,10 @@ run again; a finished run is only evaluated again. ``out`` is taken from the wor
 
 Writes into ``out`` (default ``outputs/demo``; hydra's ``.hydra/`` and ``demo.log`` too):
 
-* ``train/``: the training run (config.yaml, per-stage checkpoints and logs; svr/training.py);
+* ``train/``: the training run (config.yaml, per-stage checkpoints and logs; svr/train.py);
 * the evaluation script's files (``svr.evaluate``: the benchmark IoU protocol, every view of every
   test object): ``table.md`` / ``table.csv`` in the paper's layout (categories as columns, mean
-  last) with the full model, the coarse stage alone and every baseline of ``svr.baselines`` (mean
+  last) with the full model, the coarse stage alone and every baseline of ``svr.evaluation.baselines`` (mean
   shape, category mean shape, retrieval, the oracle) as rows, and ours minus retrieval;
   ``iou.json`` (``{"split", "categories", "mean", ...}``, the coarse stage under ``"extra"``, the
   baselines under ``"baselines"``); ``per_object.csv`` and ``per_image.csv``;
@@ -34,7 +34,7 @@ from typing import Any, Optional, Sequence
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from sdfcommon.cli import hydra_entry
+from sdfcommon.tooling.commands import hydra_entry
 
 
 # ------------------------------------------------------------------------------------------------
@@ -56,11 +56,11 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from sdfcommon.geometry import sdf_to_mesh
+    from sdfcommon.numerics.meshing import sdf_to_mesh
 
-    from .data.nmr import NUM_VIEWS
-    from .prediction import predict_sdf
-    from .rendering import render_views
+    from svr.data.nmr import NUM_VIEWS
+    from svr.inference.prediction import predict_sdf
+    from svr.view_renders import render_views
 
     net.eval()
     coarse_net.eval()
@@ -120,7 +120,7 @@ def stage_checkpoint(run_dir: Path, stage: str) -> Path:
 def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progress: bool = True,
                  protocol_workers: int = 0) -> dict:
     """Scores a finished demo run with the benchmark protocol (``svr.evaluate``): its last stage's
-    checkpoint, its coarse stage's checkpoint and every baseline (``svr.baselines``), on the same images.
+    checkpoint, its coarse stage's checkpoint and every baseline (``svr.evaluation.baselines``), on the same images.
 
     Writes into ``out_dir`` the evaluation script's files (``table.md``, ``table.csv``,
     ``iou.json`` with the coarse stage under ``"extra"`` and the baselines under ``"baselines"``,
@@ -132,11 +132,11 @@ def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progres
     """
     from hydra.utils import instantiate
 
-    from .baselines import BASELINES
-    from .checkpoints import load_network
-    from .evaluate import add_baselines, evaluate
-    from .prediction import load_model
-    from .report import format_table, write_report
+    from svr.evaluation.baselines import BASELINES
+    from svr.inference.checkpoints import load_network
+    from svr.evaluate import add_baselines, evaluate
+    from svr.inference.prediction import load_model
+    from svr.evaluation.tables import format_table, write_report
 
     dm = instantiate(cfg.data)
     dm.prepare_data()
@@ -170,7 +170,7 @@ def stage_steps(cfg, run_dir: Path) -> dict[str, dict[str, Optional[int]]]:
     """Per scheduled stage, the steps its config planned and the steps its ``final.ckpt`` reached
     (None where the stage has not finished). A stage that reached fewer was stopped by its time cap
     (``stage.<name>.max_time``): that run trained less than the demo's schedule."""
-    from .checkpoints import load_checkpoint
+    from svr.inference.checkpoints import load_checkpoint
 
     out: dict[str, dict[str, Optional[int]]] = {}
     for stage in cfg.stage.schedule:
@@ -184,9 +184,9 @@ def resume_point(run_dir: Path, schedule: Sequence[str]) -> tuple[bool, Optional
     """Where a demo run left off: (finished, checkpoint to resume from).
 
     Finished when the last scheduled stage wrote ``final.ckpt``; otherwise the latest checkpoint
-    of the latest stage that wrote one (``svr.resume.latest_checkpoint``; None: start afresh).
+    of the latest stage that wrote one (``svr.training.resume.latest_checkpoint``; None: start afresh).
     """
-    from .resume import latest_checkpoint
+    from svr.training.resume import latest_checkpoint
 
     if (Path(run_dir) / schedule[-1] / "checkpoints" / "final.ckpt").is_file():
         return True, Path(run_dir) / schedule[-1] / "checkpoints" / "final.ckpt"
@@ -197,7 +197,7 @@ def run_train_seconds(run_dir: Path, schedule: Sequence[str]) -> Optional[float]
     """The whole run's training seconds: the sum over its stages of the ``train_seconds`` their
     final checkpoints record (kept over resumes, so a run stopped and resumed counts every part).
     None when a stage has not finished."""
-    from .checkpoints import CHECKPOINT_KEY, load_checkpoint
+    from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint
 
     total = 0.0
     for stage in schedule:
@@ -214,7 +214,7 @@ QUIET = {"data.progress": False, "trainer.enable_progress_bar": False, "callback
 
 def split_config(cfg: DictConfig) -> tuple[dict[str, Any], DictConfig]:
     """configs/demo.yaml composed -> (the demo's own settings, checked; the training config)."""
-    from sdfcommon.cli import config_bool, config_int, config_value
+    from sdfcommon.tooling.commands import config_bool, config_int, config_value
 
     opts = {"out": config_value(cfg, "out"), "eval_only": config_bool(cfg, "eval_only"),
             "fresh": config_bool(cfg, "fresh"), "protocol_workers": config_int(cfg, "protocol_workers", minimum=0),
@@ -233,8 +233,8 @@ def split_config(cfg: DictConfig) -> tuple[dict[str, Any], DictConfig]:
 def demo_config(run_dir: Path, cfg: DictConfig, overrides: Sequence[str], fresh: bool) -> DictConfig:
     """The training config: ``cfg`` (experiment=demo with the overrides); for a run already in
     ``run_dir`` (unless ``fresh``), that run's ``config.yaml`` with the changes a resume may make
-    (``svr.resume.resume_config``: other changed settings are refused, naming them)."""
-    from .resume import resume_config
+    (``svr.training.resume.resume_config``: other changed settings are refused, naming them)."""
+    from svr.training.resume import resume_config
 
     saved = Path(run_dir) / "config.yaml"
     if fresh or not saved.is_file():
@@ -251,7 +251,7 @@ def run(cfg: DictConfig, overrides: Optional[Sequence[str]] = None) -> dict:
     Args:
         cfg: configs/demo.yaml with the command line's overrides.
         overrides: those overrides (default: hydra's, inside a hydra run); a resumed run may change
-            only what ``svr.resume.RESUMABLE_KEYS`` allows of the ones that name training settings.
+            only what ``svr.training.resume.RESUMABLE_KEYS`` allows of the ones that name training settings.
     Returns:
         {"table", "iou", "files"} and the timings.
     """
@@ -277,7 +277,7 @@ def run(cfg: DictConfig, overrides: Optional[Sequence[str]] = None) -> dict:
     elif finished:
         print(f"{run_dir} holds a finished run: evaluating it (fresh=true trains again)")
     else:
-        from .training import TrainingStopped, train
+        from svr.training.stages import TrainingStopped, train
 
         if opts["fresh"] and run_dir.exists():
             import shutil
@@ -300,7 +300,7 @@ def run(cfg: DictConfig, overrides: Optional[Sequence[str]] = None) -> dict:
     timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,
                "eval_seconds": time.time() - t_eval, "total_seconds_this_command": time.time() - start,
                "resumed": resume is not None, "steps": steps}
-    from sdfcommon.outputs import write_json
+    from sdfcommon.tooling.outputs import write_json
 
     result["files"].append(str(write_json(out_dir / "timings.json", timings)))
     iou_json = out_dir / "iou.json"

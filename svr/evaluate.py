@@ -6,7 +6,7 @@ Command line (configs/eval.yaml; hydra overrides)::
     python -m svr.evaluate ckpt_path=X.ckpt data=nmr data.root=/data/NMR_ShapeNet   # the paper's benchmark
     python -m svr.evaluate ckpt_path=X.ckpt split=val compare_coarse=true device=cuda protocol_workers=8
 
-The protocol (SPEC section 5, ``svr.metrics``): every one of the 24 views of every object of the
+The protocol (SPEC section 5, ``svr.evaluation.metrics``): every one of the 24 views of every object of the
 split is one prediction; its SDF grid becomes a marching-cubes mesh, the mesh 32^3 voxels by the
 benchmark's rules, and IoU is taken against the object's voxels; a category's IoU is the mean over
 its images, the reported mean the unweighted mean over the categories.
@@ -16,14 +16,14 @@ rows) and writes into ``output_dir`` (each file atomically): ``table.md``, ``tab
 ``iou.json`` (``{"split", "categories": {name: iou}, "mean", ...}``), ``per_object.csv`` (worst
 objects first) and ``per_image.csv``. ``output_dir`` is also hydra's run folder (nothing is made in
 the working directory); without it, ``outputs/eval/<time>``. A mistake in the settings or files is
-one line ``sdfdiff-evaluate: error: ...`` with exit status 2 (``sdfcommon.cli``). The
+one line ``sdfdiff-evaluate: error: ...`` with exit status 2 (``sdfcommon.tooling.commands``). The
 ``protocol_workers`` processes die with the command, however it is stopped.
 
 Python API (reused by drivers such as a demo, so there is one implementation of the table; the
-report is ``svr.report``'s)::
+report is ``svr.evaluation.tables``'s)::
 
-    result = evaluate(load_model("best.ckpt"), datamodule, split="test")   # svr.prediction.load_model
-    print(format_table(result)); write_report(result, "eval_out")         # svr.report
+    result = evaluate(load_model("best.ckpt"), datamodule, split="test")   # svr.inference.prediction.load_model
+    print(format_table(result)); write_report(result, "eval_out")         # svr.evaluation.tables
 
 Several processes (one machine or many): start the same command under torchrun or srun; each
 process evaluates one contiguous block of the images (no image twice, none left out), the
@@ -51,17 +51,17 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
-from sdfcommon.checks import check_int
-from sdfcommon.cli import config_bool, config_choice, config_float, config_int, config_ints, config_value, hydra_entry
-from sdfcommon.processes import process_pool
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.commands import config_bool, config_choice, config_float, config_int, config_ints, config_value, hydra_entry
+from sdfcommon.tooling.processes import process_pool
 
-from sdfcommon.outputs import ensure_output_dir
+from sdfcommon.tooling.outputs import ensure_output_dir
 
-from .data.nmr import NUM_VIEWS, SPLITS, check_view_ids
-from .distributed import RankInfo, barrier, gather_uneven, local_rank, process_group_from_environment
-from .metrics import voxel_iou, voxels_protocol
-from .prediction import ModelLike, as_model, load_model, predict_sdf
-from .report import NMR_CATEGORY_IDS, EvaluationResult, format_iou, format_table, write_report
+from svr.data.nmr import NUM_VIEWS, SPLITS, check_view_ids
+from svr.distributed import RankInfo, barrier, gather_uneven, local_rank, process_group_from_environment
+from svr.evaluation.metrics import voxel_iou, voxels_protocol
+from svr.inference.prediction import ModelLike, as_model, load_model, predict_sdf
+from svr.evaluation.tables import NMR_CATEGORY_IDS, EvaluationResult, format_iou, format_table, write_report
 
 log = logging.getLogger(__name__)
 
@@ -87,7 +87,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
     """Runs the benchmark protocol over the (object, view) images of a split's objects.
 
     Args:
-        model: LoadedModel, SVRNet or checkpoint path (``svr.prediction.as_model``).
+        model: LoadedModel, SVRNet or checkpoint path (``svr.inference.prediction.as_model``).
         objects: the split's per-object dataset (``svr.data.nmr.NMRDataset``, e.g. ``datamodule.dataset(split)``).
         categories: (id, name) pairs, the order of the dataset's category indices.
         split: the split's name (reported).
@@ -97,7 +97,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
         batch_size: images per forward pass; num_workers: DataLoader workers.
         compare_coarse: also score the coarse SDF (the refiner's gain).
         protocol_workers: processes for the CPU-bound mesh voxelisation (0: in this process); they
-            die with this process (``sdfcommon.processes.process_pool``), killed or not.
+            die with this process (``sdfcommon.tooling.processes.process_pool``), killed or not.
         keep_voxels: keep every predicted voxel grid in the result (32 KiB per image).
         progress: a tqdm progress bar over the images.
         distributed: share the images among the ranks of the initialised default process group
@@ -114,8 +114,8 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
     from torch.utils.data import DataLoader
     from tqdm.auto import tqdm
 
-    from .data.datamodule import EvalShardSampler, EvalViews
-    from .data.types import collate_batch
+    from svr.data.datamodule import EvalShardSampler, EvalViews
+    from svr.data.types import collate_batch
 
     check_int(batch_size, "batch_size", 1)
     check_int(num_workers, "num_workers", 0)
@@ -193,7 +193,7 @@ def evaluate_objects(model: ModelLike, objects, categories: Sequence[tuple[str, 
 
 def _is_nmr_shapenet(objects, categories: Sequence[tuple[str, str]]) -> bool:
     """Real NMR ShapeNet: the 13 benchmark ids, and not our procedural data (which uses the same ids)."""
-    from .data.procedural import is_procedural_dataset
+    from svr.data.procedural.generator import is_procedural_dataset
 
     return bool(categories) and all(c in NMR_CATEGORY_IDS for c, _ in categories) and not (
         hasattr(objects, "root") and is_procedural_dataset(objects.root))
@@ -201,14 +201,14 @@ def _is_nmr_shapenet(objects, categories: Sequence[tuple[str, str]]) -> bool:
 
 def add_baselines(result: EvaluationResult, datamodule, names: Sequence[str], model: ModelLike,
                   progress: bool = True) -> EvaluationResult:
-    """The result with the baselines (``svr.baselines``) scored on the same images and split.
+    """The result with the baselines (``svr.evaluation.baselines``) scored on the same images and split.
 
     Args:
         datamodule: the evaluated data module (its training split feeds the baselines).
-        names: baselines (``svr.baselines.BASELINES``); "oracle" is left out on real NMR data.
+        names: baselines (``svr.evaluation.baselines.BASELINES``); "oracle" is left out on real NMR data.
         model: the evaluated model (the oracle samples the exact shapes on its grid).
     """
-    from .baselines import check_baselines, score_baselines
+    from svr.evaluation.baselines import check_baselines, score_baselines
 
     names = check_baselines(names)
     if not names:
@@ -233,7 +233,7 @@ def _distributed_ranks(distributed: bool) -> RankInfo:
 
 def describe_data(datamodule) -> str:
     """A short description of a data module: its kind and folder."""
-    from .data.datamodule import ProceduralDataModule
+    from svr.data.datamodule import ProceduralDataModule
 
     root = getattr(datamodule, "root", None)
     if isinstance(datamodule, ProceduralDataModule):
@@ -254,8 +254,8 @@ def evaluate(model: ModelLike, datamodule, split: str = "test", **kwargs) -> Eva
     Args:
         kwargs: as ``evaluate_objects`` (views, batch_size, compare_coarse, distributed, ...).
     """
-    from .data.datamodule import ProceduralDataModule
-    from .data.nmr import prepare_nmr
+    from svr.data.datamodule import ProceduralDataModule
+    from svr.data.nmr import prepare_nmr
 
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
@@ -348,7 +348,7 @@ _main = hydra_entry("sdfdiff-evaluate", "eval", run)
 
 def main() -> None:
     """``python -m svr.evaluate`` / ``sdfdiff-evaluate``: hydra reads configs/eval.yaml and the overrides."""
-    from .distributed import launch_rank_is_zero
+    from svr.distributed import launch_rank_is_zero
 
     if not launch_rank_is_zero():
         # As Lightning does for its DDP processes: one process writes hydra's .hydra/ folder.

@@ -11,7 +11,7 @@ Per input image ``<stem>`` it writes into ``output_dir`` (each file atomically):
 * ``<stem>_sdf.npz``: ``values`` (N, N, N) float32 SDF (world units) in renderer.SDFGrid's layout
   (``values[i, j, k]`` at world ``(x_i, y_j, z_k)``, samples on the box faces, y up, the NMR
   ShapeNet frame), ``bbox_min`` / ``bbox_max`` (3,) float32, ``stage`` and ``checkpoint``;
-* ``<stem>.ply``, ``<stem>.obj``: the zero level set by marching cubes (``sdfcommon.geometry.sdf_to_mesh``,
+* ``<stem>.ply``, ``<stem>.obj``: the zero level set by marching cubes (``sdfcommon.numerics.meshing.sdf_to_mesh``,
   closed at the box), checked watertight with trimesh;
 * ``<stem>_views.png``: the network's input (RGB, alpha) beside renders of the prediction from a
   few NMR views (``renderer.render`` with ``renderer.Cameras.nmr``).
@@ -24,13 +24,13 @@ or an inverted mask (opaque along the whole border).
 
 The output folder is ``output_dir`` (hydra's run folder and its ``.hydra/`` record go there too;
 nothing is made in the working directory), else ``outputs/infer/<time>``. A mistake in the settings
-or files is one line ``sdfdiff-infer: error: ...`` with exit status 2 (``sdfcommon.cli``).
+or files is one line ``sdfdiff-infer: error: ...`` with exit status 2 (``sdfcommon.tooling.commands``).
 
-Python API (in-memory tensors; loading and predicting live in ``svr.prediction``, the preview
-renders in ``svr.rendering``)::
+Python API (in-memory tensors; loading and predicting live in ``svr.inference.prediction``, the preview
+renders in ``svr.view_renders``)::
 
-    model = svr.prediction.load_model("best.ckpt", device="cpu")
-    grids = svr.prediction.predict(model, images)   # (B, 4, 64, 64) -> renderer.SDFGrid (B, N, N, N)
+    model = svr.inference.prediction.load_model("best.ckpt", device="cpu")
+    grids = svr.inference.prediction.predict(model, images)   # (B, 4, 64, 64) -> renderer.SDFGrid (B, N, N, N)
     recs = reconstruct(model, images)         # + meshes, watertight flags, renders
     save_reconstruction(recs[0], "out", "name", input_image=images[0])
 """
@@ -47,14 +47,14 @@ import numpy as np
 import torch
 
 import renderer
-from sdfcommon.checks import check_int
-from sdfcommon.cli import config_bool, config_int, config_ints, config_value, hydra_entry
-from sdfcommon.outputs import ensure_output_dir
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.commands import config_bool, config_int, config_ints, config_value, hydra_entry
+from sdfcommon.tooling.outputs import ensure_output_dir
 
-from .data.nmr import check_view_ids
-from .images import find_images, find_mask, load_image
-from .prediction import ModelLike, as_model, load_model, predict
-from .rendering import PREVIEW_VIEWS, render_previews
+from svr.data.nmr import check_view_ids
+from svr.inference.images import find_images, find_mask, load_image
+from svr.inference.prediction import ModelLike, as_model, load_model, predict
+from svr.view_renders import PREVIEW_VIEWS, render_previews
 
 log = logging.getLogger(__name__)
 
@@ -103,7 +103,7 @@ def reconstruct(model: ModelLike, images: torch.Tensor, views: Sequence[int] = P
     Returns:
         one Reconstruction per image.
     """
-    from sdfcommon.geometry import sdf_to_mesh
+    from sdfcommon.numerics.meshing import sdf_to_mesh
 
     views = check_view_ids(views)
     check_int(render_size, "render_size", minimum=1)
@@ -176,7 +176,7 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
     Returns:
         {format: path} of the files written.
     """
-    from sdfcommon.outputs import write_mesh, write_npz, write_png
+    from sdfcommon.tooling.outputs import write_mesh, write_npz, write_png
 
     check_formats(formats)
     folder = Path(out_dir)

@@ -8,7 +8,7 @@
   channel always, the shaded colour against RGB only when the scene asks for shading (datasets
   whose shading model is known). Which passes run follows the scene, so silhouette-only data never
   pays for shading.
-* ``eikonal_loss`` and ``laplacian_loss`` (``sdfcommon.regularisers``, shared with mvr) are finite
+* ``eikonal_loss`` and ``laplacian_loss`` (``sdfcommon.numerics.regularisers``, shared with mvr) are finite
   differences on the grid, averaged over the narrow band's vertices.
 
 Grids are (B, N, N, N) in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``),
@@ -23,9 +23,9 @@ import torch
 from torch.nn import functional as F
 
 import renderer
-from sdfcommon.regularisers import band_regularisers, check_positive, eikonal_loss, laplacian_loss, narrow_band
+from sdfcommon.numerics.regularisers import band_regularisers, check_positive, eikonal_loss, laplacian_loss, narrow_band
 
-from .rendering import render_views
+from svr.view_renders import render_views
 
 SILHOUETTE_KINDS = ("mse", "iou")
 

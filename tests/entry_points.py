@@ -9,7 +9,7 @@ import pytest
 
 
 def run_entry(entry: Callable[[], None], args: list[str], monkeypatch) -> None:
-    """Calls ``entry()`` (a ``sdfcommon.cli.hydra_entry`` main) with command-line ``args``."""
+    """Calls ``entry()`` (a ``sdfcommon.tooling.commands.hydra_entry`` main) with command-line ``args``."""
     monkeypatch.setattr(sys, "argv", ["prog", *args])
     entry()
 

@@ -1,4 +1,4 @@
-"""sdfcommon.cli: one error handling for every hydra entry point, no leftovers of a failed run,
+"""sdfcommon.tooling.commands: one error handling for every hydra entry point, no leftovers of a failed run,
 config getters that name the key; sdfcommon below svr and mvr."""
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from sdfcommon.cli import (USAGE_ERROR, config_choice, config_float, config_int, config_ints, config_object,
+from sdfcommon.tooling.commands import (USAGE_ERROR, config_choice, config_float, config_int, config_ints, config_object,
                            hydra_entry, user_message)
-from sdfcommon.serialization import load_torch, scrub_unsafe_advice
+from sdfcommon.tooling.serialization import load_torch, scrub_unsafe_advice
 
 from .entry_points import expect_usage_error, files_under, run_entry
 
@@ -63,7 +63,7 @@ def toy(tmp_path):
 
 
 def test_sdfcommon_imports_neither_svr_nor_mvr():
-    code = ("import sys, sdfcommon, sdfcommon.cli, sdfcommon.checks, sdfcommon.serialization, sdfcommon.processes\n"
+    code = ("import sys, sdfcommon, sdfcommon.tooling.commands, sdfcommon.tooling.checks, sdfcommon.tooling.serialization, sdfcommon.tooling.processes\n"
             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('svr', 'mvr')))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr

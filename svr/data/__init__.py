@@ -12,9 +12,11 @@ import importlib
 _EXPORTS = {
     "SVRBatch": "types", "ShadingModel": "types", "collate_batch": "types",
     "NMRDataset": "nmr", "NMR_CATEGORIES": "nmr", "prepare_nmr": "nmr",
-    "ALL_CATEGORIES": "categories", "NMR_PROCEDURAL_CATEGORIES": "categories", "ProceduralSettings": "procedural", "DEFAULT_SHADING": "procedural",
-    "generate_procedural_dataset": "procedural", "ensure_procedural_dataset": "procedural",
-    "make_shape": "procedural", "render_shape": "procedural", "voxelize_shape": "procedural",
+    "ALL_CATEGORIES": "procedural.categories", "NMR_PROCEDURAL_CATEGORIES": "procedural.categories",
+    "ProceduralSettings": "procedural.generator", "DEFAULT_SHADING": "procedural.generator",
+    "generate_procedural_dataset": "procedural.generator", "ensure_procedural_dataset": "procedural.generator",
+    "make_shape": "procedural.generator", "render_shape": "procedural.generator",
+    "voxelize_shape": "procedural.generator",
     "NMRDataModule": "datamodule", "ProceduralDataModule": "datamodule",
 }
 

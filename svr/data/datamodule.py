@@ -36,11 +36,11 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 from torch.utils.data.distributed import DistributedSampler
 
-from ..distributed import RankInfo, shard_indices
-from .nmr import NUM_VIEWS, SPLITS, NMRDataset, check_view_ids, prepare_nmr, resolve_categories
-from .procedural import (DEFAULT_SHADING, ProceduralSettings, default_workers, ensure_procedural_dataset,
+from svr.distributed import RankInfo, shard_indices
+from svr.data.nmr import NUM_VIEWS, SPLITS, NMRDataset, check_view_ids, prepare_nmr, resolve_categories
+from svr.data.procedural.generator import (DEFAULT_SHADING, ProceduralSettings, default_workers, ensure_procedural_dataset,
                          load_shading, procedural_dataset_dir)
-from .types import ShadingModel, collate_batch
+from svr.data.types import ShadingModel, collate_batch
 
 PathLike = str | os.PathLike
 REPO_ROOT = Path(__file__).resolve().parents[2]
@@ -432,7 +432,7 @@ class NMRDataModule(pl.LightningDataModule):
 
 
 class ProceduralDataModule(NMRDataModule):
-    """The built-in procedural dataset (``svr.data.procedural``), generated on first use into
+    """The built-in procedural dataset (``svr.data.procedural.generator``), generated on first use into
     ``<cache_dir>/procedural-<hash of the settings>`` and reused afterwards.
 
     Args:

@@ -5,7 +5,7 @@ Layout of a root folder (SPEC section 5), per category id ``cid`` and split (tra
 * ``{cid}_{split}_images.npz``: key ``arr_0``, uint8 (N, 24, 4, 64, 64): per object 24 views
   (view k: azimuth -15 k degrees, ``renderer.Cameras.nmr``), channels R, G, B, alpha.
 * ``{cid}_{split}_voxels.npz``: key ``arr_0``, bool (N, 32, 32, 32), solid, in the NMR voxel frame
-  (``svr.geometry``: ``vox[i, j, k]`` at world ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``).
+  (``svr.evaluation.voxels``: ``vox[i, j, k]`` at world ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``).
 * optional ``metadata.json`` (procedural data): category names and the shading model.
 
 ``prepare_nmr`` converts the compressed files once into uncompressed ``{cid}_{split}_images.npy`` /
@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from renderer import NMR_NUM_VIEWS as NUM_VIEWS
-from sdfcommon.checks import check_int
-from sdfcommon.outputs import atomic_path
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.outputs import atomic_path
 
 PathLike = Union[str, os.PathLike]
 
@@ -148,7 +148,7 @@ def open_prepared(path: PathLike, kind: str, num_objects: Optional[int] = None) 
 
 def _stream_npz_to_npy(src: Path, dst: Path, kind: str, chunk_objects: int) -> int:
     """Copies the array of an npz member into ``dst`` (.npy) chunk by chunk, never holding it whole;
-    written to a temporary file first, then renamed (``sdfcommon.outputs.atomic_path``)."""
+    written to a temporary file first, then renamed (``sdfcommon.tooling.outputs.atomic_path``)."""
     item, want = _ITEM[kind]
     try:
         with atomic_path(dst) as tmp, zipfile.ZipFile(src) as zf, zf.open(_npz_member(zf, src)) as f:

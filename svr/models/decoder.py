@@ -7,7 +7,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ._checks import check_channels, check_positive, check_positive_int
+from svr.models._checks import check_channels, check_positive, check_positive_int
 
 
 def sphere_template(resolution: int, half_side: float, radius: float, axis: torch.Tensor | None = None) -> torch.Tensor:

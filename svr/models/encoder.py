@@ -6,7 +6,7 @@ from typing import Sequence
 import torch
 from torch import nn
 
-from ._checks import check_channels, check_positive_int
+from svr.models._checks import check_channels, check_positive_int
 
 
 class ImageEncoder(nn.Module):

@@ -30,12 +30,12 @@ import torch
 
 import renderer
 
-from ..checkpoints import CHECKPOINT_KEY, check_stage
-from ..data.types import SVRBatch
-from ..distributed import gather_unique
-from ..losses import LossTerms, LossWeights, image_loss, total_loss
-from ..metrics import iou_direct, iou_table
-from .network import SVRNet
+from svr.inference.checkpoints import CHECKPOINT_KEY, check_stage
+from svr.data.types import SVRBatch
+from svr.distributed import gather_unique
+from svr.losses import LossTerms, LossWeights, image_loss, total_loss
+from svr.evaluation.metrics import iou_direct, iou_table
+from svr.models.network import SVRNet
 
 
 OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
@@ -147,7 +147,7 @@ class SVRLightningModule(pl.LightningModule):
 
     def stage_sdf(self, images: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
         """(B, 4, 64, 64) images -> the coarse (B, N, N, N) and refined SDF (None in the coarse stage) as
-        this stage trains them (inference: ``svr.prediction.predict_sdf``).
+        this stage trains them (inference: ``svr.inference.prediction.predict_sdf``).
 
         Frozen parts run without a graph (they need no gradient)."""
         if self.stage == "refine":
@@ -258,7 +258,7 @@ class SVRLightningModule(pl.LightningModule):
         self._val_iou, self._val_iou_coarse, self._val_category, self._val_key = [], [], [], []
 
     def validation_step(self, batch: SVRBatch, batch_idx: int) -> None:
-        """Fast direct IoU (``svr.metrics.iou_direct``) of the stage's output and of the coarse SDF,
+        """Fast direct IoU (``svr.evaluation.metrics.iou_direct``) of the stage's output and of the coarse SDF,
         one prediction per batch element from its first view."""
         coarse, refined = self.stage_sdf(batch.images[:, 0])
         hs = self.net.half_side

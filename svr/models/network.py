@@ -8,9 +8,9 @@ from torch import nn
 
 import renderer
 
-from .decoder import SDFDecoder
-from .encoder import ImageEncoder
-from .refiner import BlockRefiner, SDFRefiner
+from svr.models.decoder import SDFDecoder
+from svr.models.encoder import ImageEncoder
+from svr.models.refiner import BlockRefiner, SDFRefiner
 
 
 @dataclass(frozen=True)

@@ -10,8 +10,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from ._checks import check_channels, check_positive, check_positive_int
-from .decoder import upsample2_centres
+from svr.models._checks import check_channels, check_positive, check_positive_int
+from svr.models.decoder import upsample2_centres
 
 
 def _conv_block(c_in: int, c_out: int, batch_norm: bool, **conv) -> list[nn.Module]:

@@ -1,4 +1,4 @@
-"""sdfcommon.geometry.sdf_to_mesh against analytic shapes: a sphere's mesh lies on the sphere (within
+"""sdfcommon.numerics.meshing.sdf_to_mesh against analytic shapes: a sphere's mesh lies on the sphere (within
 a voxel), encloses its volume with outward normals, and a shape cut by the box is closed there."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from sdfcommon.geometry import sdf_to_mesh
+from sdfcommon.numerics.meshing import sdf_to_mesh
 
 
 def _grid(n: int, lo: float, hi: float) -> torch.Tensor:

@@ -1,4 +1,4 @@
-"""sdfcommon.host_memory: on Linux/glibc a freed 64^3-grid-sized block stays in the process (to be reused
+"""sdfcommon.tooling.host_memory: on Linux/glibc a freed 64^3-grid-sized block stays in the process (to be reused
 without page faults) instead of going back to the system, and the call is idempotent."""
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import sys
 
 import pytest
 
-from sdfcommon.host_memory import keep_freed_memory
+from sdfcommon.tooling.host_memory import keep_freed_memory
 
 PROBE = r"""
 import sys, torch
-from sdfcommon.host_memory import keep_freed_memory
+from sdfcommon.tooling.host_memory import keep_freed_memory
 if sys.argv[1] == "on":
     assert keep_freed_memory() and keep_freed_memory()
 def rss_kib():

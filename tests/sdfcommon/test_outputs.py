@@ -1,4 +1,4 @@
-"""sdfcommon.outputs: every writer leaves either the old file or the whole new one, with the mode a
+"""sdfcommon.tooling.outputs: every writer leaves either the old file or the whole new one, with the mode a
 plainly created file gets; a killed writer's temporaries are recognised and removed."""
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from sdfcommon.outputs import (atomic_path, atomic_write, remove_stale_temporaries, write_csv, write_json,
+from sdfcommon.tooling.outputs import (atomic_path, atomic_write, remove_stale_temporaries, write_csv, write_json,
                                write_mesh, write_npz, write_png, write_text, write_torch)
 
 

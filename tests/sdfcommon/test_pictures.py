@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sdfcommon.pictures import labelled_grid
+from sdfcommon.tooling.pictures import labelled_grid
 
 RED = (1.0, 0.0, 0.0)
 
@@ -75,6 +75,6 @@ def test_imports_neither_application():
     import subprocess
     import sys
 
-    code = "import sys, sdfcommon.pictures; print(sorted({'svr', 'mvr'} & {m.split('.')[0] for m in sys.modules}))"
+    code = "import sys, sdfcommon.tooling.pictures; print(sorted({'svr', 'mvr'} & {m.split('.')[0] for m in sys.modules}))"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"

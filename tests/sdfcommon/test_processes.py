@@ -1,10 +1,10 @@
-"""sdfcommon.processes: pools whose workers die with their parent also run the caller's initializer
+"""sdfcommon.tooling.processes: pools whose workers die with their parent also run the caller's initializer
 (the procedural data generation's workers use one)."""
 from __future__ import annotations
 
 import os
 
-from sdfcommon.processes import process_pool
+from sdfcommon.tooling.processes import process_pool
 
 
 def _set_marker(value: str) -> None:

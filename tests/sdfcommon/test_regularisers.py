@@ -1,4 +1,4 @@
-"""sdfcommon.regularisers: the eikonal and Laplacian terms against hand-computed values on tiny grids
+"""sdfcommon.numerics.regularisers: the eikonal and Laplacian terms against hand-computed values on tiny grids
 and analytic fields, the narrow band's edge cases, every interior vertex (mu=None, what mvr uses),
 finite-difference gradients, the fused CPU operation against the torch specification, bad input."""
 from __future__ import annotations
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 import renderer
-from sdfcommon.regularisers import band_regularisers, eikonal_loss, laplacian_loss, narrow_band
+from sdfcommon.numerics.regularisers import band_regularisers, eikonal_loss, laplacian_loss, narrow_band
 
 
 def ramp_grid(values_along_x, ny: int = 3, nz: int = 3, dtype=torch.float64) -> torch.Tensor:
@@ -120,7 +120,7 @@ def test_band_edge_vertices_do_not_count():
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_fused_band_regularisers_match_the_torch_specification(dtype):
-    from sdfcommon import band_kernel
+    from sdfcommon.numerics import band_kernel
 
     if not band_kernel.available():
         pytest.skip("numba is not installed")
@@ -181,7 +181,7 @@ def test_bad_input_names_the_argument():
 
 def test_every_interior_vertex_is_listed_once_and_cached():
     """band_vertices(mu=None): the interior vertices in order, the same tensor for the same shape."""
-    from sdfcommon.regularisers import band_vertices
+    from sdfcommon.numerics.regularisers import band_vertices
 
     sdf = torch.randn(2, 5, 6, 7)
     got, _ = band_vertices(sdf, 0.1, None)

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from svr.data.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural import ProceduralSettings, ensure_procedural_dataset
+from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
+from svr.data.procedural.generator import ProceduralSettings, ensure_procedural_dataset
 
 # Three categories, one of them with a handle on the +x side (mug) and one with a back on +z (chair).
 TINY_SETTINGS = ProceduralSettings(categories=("chair", "mug", "lamp"), train=2, val=1, test=1, seed=3, supersample=2)

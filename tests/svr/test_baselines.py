@@ -1,4 +1,4 @@
-"""svr.baselines: mean shapes, retrieval and the oracle, scored on an evaluation's images; their rows
+"""svr.evaluation.baselines: mean shapes, retrieval and the oracle, scored on an evaluation's images; their rows
 in the evaluation table."""
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 import torch
 
-from svr.baselines import (BASELINES, category_mean_shapes, check_baselines, mean_shape, oracle_voxels,
+from svr.evaluation.baselines import (BASELINES, category_mean_shapes, check_baselines, mean_shape, oracle_voxels,
                            protocol_voxels_of_voxels, retrieve, score_baselines)
 from svr.data.nmr import NMR_CATEGORIES, NMRDataset, nmr_file, prepare_nmr
-from svr.data.procedural import dataset_shape
-from svr.report import EvaluationResult, format_table, table_rows, write_report
-from svr.metrics import voxel_iou
+from svr.data.procedural.generator import dataset_shape
+from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report
+from svr.evaluation.metrics import voxel_iou
 
 
 class VoxelSet:

@@ -6,7 +6,7 @@ import stat
 
 import torch
 
-from svr.callbacks import AtomicCheckpointIO
+from svr.training.callbacks import AtomicCheckpointIO
 
 
 def test_checkpoints_follow_the_umask(tmp_path, umask_022):
@@ -22,7 +22,7 @@ def test_image_logger_writes_a_labelled_legible_picture(tmp_path):
     import numpy as np
     from PIL import Image
 
-    from svr.callbacks import ImageLogger
+    from svr.training.callbacks import ImageLogger
 
     b, v, h = 3, 2, 16
     g = torch.Generator().manual_seed(0)

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from svr.data.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, MAX_RAW_SIZE, MIN_PART,
+from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, MAX_RAW_SIZE, MIN_PART,
                                  NMR_PROCEDURAL_CATEGORIES, make_shape, procedural_category, style_of)
-from svr.data.csg import BOX, CAPSULE, CYLINDER, SPHERE, TORUS, UNION, CSGShape, surface_normals
+from svr.data.procedural.csg import BOX, CAPSULE, CYLINDER, SPHERE, TORUS, UNION, CSGShape, surface_normals
 from svr.data.nmr import NMR_CATEGORIES
 
 REPO = Path(__file__).resolve().parents[2]
@@ -23,8 +23,8 @@ THINNEST = 0.048
 def oracle_iou(shape: CSGShape, hs: float = 0.6, n: int = 64) -> float:
     """Benchmark IoU of the exact shape sampled on the model's 64^3 grid against the protocol's
     ground truth: the best a model can score on this shape."""
-    from svr.data.procedural import voxelize_shape
-    from svr.metrics import voxel_iou, voxels_protocol
+    from svr.data.procedural.generator import voxelize_shape
+    from svr.evaluation.metrics import voxel_iou, voxels_protocol
 
     ax = np.linspace(-hs, hs, n)
     vals = shape.sdf_numpy(np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1))
@@ -33,7 +33,7 @@ def oracle_iou(shape: CSGShape, hs: float = 0.6, n: int = 64) -> float:
 
 
 def _genus(shape: CSGShape, n: int = 64) -> int:
-    from sdfcommon.geometry import sdf_to_mesh
+    from sdfcommon.numerics.meshing import sdf_to_mesh
 
     ax = np.linspace(-0.56, 0.56, n)
     grid = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from sdfcommon.cli import compose
+from sdfcommon.tooling.commands import compose
 from svr.demo import main, resume_point, run, run_train_seconds
 
 from ..entry_points import expect_usage_error, run_entry

@@ -311,8 +311,8 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
     from hydra import compose, initialize_config_dir
     from hydra.utils import instantiate
 
-    from svr.checkpoints import load_checkpoint, load_network_weights
-    from svr.training import build_module
+    from svr.inference.checkpoints import load_checkpoint, load_network_weights
+    from svr.training.stages import build_module
 
     r0, r1 = ddp_run["ranks"]
     assert len(r0["validations"]) == len(r1["validations"]) == 1
@@ -343,10 +343,10 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
 
 def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
     """torchrun, 2 processes, 9 images (5 + 4): the same files as a single-process evaluation."""
-    from svr.baselines import BASELINES
+    from svr.evaluation.baselines import BASELINES
     from svr.evaluate import add_baselines, evaluate
-    from svr.prediction import load_model
-    from svr.report import write_report
+    from svr.inference.prediction import load_model
+    from svr.evaluation.tables import write_report
 
     cache, settings = ddp_run["cache"], ddp_run["settings"]
     ckpt = ddp_run["run"] / "coarse" / "checkpoints" / "final.ckpt"

@@ -1,7 +1,7 @@
 """svr.evaluate: the benchmark table of a checkpoint from a tiny training run (printed and written),
 the paper's layout with reference rows for NMR ShapeNet, and clear errors.
 
-The checkpoint comes from ``svr.training.train`` on a two-category procedural dataset (a few
+The checkpoint comes from ``svr.training.stages.train`` on a two-category procedural dataset (a few
 seconds); ``tiny_run`` is shared with tests/svr/test_infer.py.
 """
 from __future__ import annotations
@@ -22,9 +22,9 @@ import torch
 from svr.data.datamodule import ProceduralDataModule
 from svr.data.nmr import NMR_CATEGORIES
 from svr.evaluate import evaluate, main
-from svr.prediction import load_model, predict
-from svr.report import EvaluationResult, format_table, table_rows, write_report
-from svr.metrics import iou_protocol, iou_table
+from svr.inference.prediction import load_model, predict
+from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report
+from svr.evaluation.metrics import iou_protocol, iou_table
 
 from ..entry_points import expect_usage_error, run_entry
 
@@ -59,7 +59,7 @@ def make_tiny_run(root: Path) -> TinyRun:
         return _RUNS["run"]
     from hydra import compose, initialize_config_dir
 
-    from svr.training import train
+    from svr.training.stages import train
 
     cache = root / "cache"
     overrides = [
@@ -250,7 +250,7 @@ def test_output_dir_is_the_run_folder(tiny_run, tmp_path, monkeypatch, capsys):
 
 WORKERS_SCRIPT = """
 import json, os, sys, time
-from sdfcommon.processes import process_pool
+from sdfcommon.tooling.processes import process_pool
 pool = process_pool(2)
 pids = sorted({f.result() for f in [pool.submit(os.getpid) for _ in range(16)]})
 print(json.dumps(pids), flush=True)

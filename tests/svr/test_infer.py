@@ -17,11 +17,11 @@ from PIL import Image
 
 import renderer
 from svr.evaluate import evaluate
-from svr.geometry import voxelize_mesh_nmr
-from svr.images import load_image
+from svr.evaluation.voxels import voxelize_mesh_nmr
+from svr.inference.images import load_image
 from svr.infer import infer_files, main, reconstruct
-from svr.prediction import check_images, load_model, predict, predict_sdf, resolve_device
-from svr.metrics import voxel_iou
+from svr.inference.prediction import check_images, load_model, predict, predict_sdf, resolve_device
+from svr.evaluation.metrics import voxel_iou
 
 from ..entry_points import expect_usage_error, run_entry
 from .test_evaluate import run_main, tiny_run  # noqa: F401  (the shared tiny training run)
@@ -177,7 +177,7 @@ def test_checkpoints_move_between_cpu_and_gpu(tiny_run, tmp_path):
 
 
 def test_a_checkpoint_cannot_name_arbitrary_callables(tiny_run, tmp_path):
-    from svr.checkpoints import CHECKPOINT_KEY
+    from svr.inference.checkpoints import CHECKPOINT_KEY
 
     ckpt = torch.load(tiny_run.checkpoint, map_location="cpu", weights_only=True)
     ckpt[CHECKPOINT_KEY]["model_config"] = {"_target_": "os.system", "command": "echo pwned"}
@@ -299,7 +299,7 @@ def test_inference_from_a_read_only_working_directory(tiny_run, tmp_path):
 def test_output_folder_loses_what_a_killed_write_left(tmp_path):
     """Issue 17 item 5: stale atomic-write temporaries in an output folder are removed when a command
     writes into it again."""
-    from sdfcommon.outputs import ensure_output_dir
+    from sdfcommon.tooling.outputs import ensure_output_dir
 
     left = tmp_path / ".chair_mesh.ply.0a1b2c3d.tmp"
     left.write_bytes(b"half a mesh")

@@ -7,7 +7,7 @@ import torch
 
 import renderer
 from svr.losses import LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss
-from svr.rendering import render_views
+from svr.view_renders import render_views
 
 
 def test_silhouette_losses_hand_computed():

@@ -11,11 +11,11 @@ import torch
 import trimesh
 
 import renderer
-from svr import geometry
-from svr.data.procedural import make_shape, voxelize_shape
-from svr.geometry import (fill_enclosed, nmr_voxel_centres, voxelize_mesh_nmr, voxelize_sdf_direct,
+from svr.evaluation import voxels as geometry
+from svr.data.procedural.generator import make_shape, voxelize_shape
+from svr.evaluation.voxels import (fill_enclosed, nmr_voxel_centres, voxelize_mesh_nmr, voxelize_sdf_direct,
                           voxelize_sdf_protocol, voxels_to_sdf)
-from svr.metrics import (PAPER_SDFDIFF_IOU, PROTOCOL_LIKE_LEVEL, iou_direct, iou_protocol, iou_table, voxel_iou,
+from svr.evaluation.metrics import (PAPER_SDFDIFF_IOU, PROTOCOL_LIKE_LEVEL, iou_direct, iou_protocol, iou_table, voxel_iou,
                          voxels_protocol)
 
 R = 32
@@ -247,7 +247,7 @@ def test_gap_between_direct_and_protocol_iou_on_procedural_shapes(capsys):
 
 @pytest.mark.slow
 def test_gap_between_direct_and_protocol_iou_all_categories(capsys):
-    from svr.data.procedural import ALL_CATEGORIES
+    from svr.data.procedural.generator import ALL_CATEGORIES
 
     gaps = {}
     for cat in ALL_CATEGORIES:
@@ -310,7 +310,7 @@ def _cuboid_sdf(p: torch.Tensor, half) -> torch.Tensor:
 
 
 def test_clipping_to_the_object_box_keeps_shapes_that_reach_past_the_benchmark_grid_solid():
-    from svr.geometry import clip_to_box, nmr_voxel_centres
+    from svr.evaluation.voxels import clip_to_box, nmr_voxel_centres
 
     n, hs = 64, 0.6
     axis = torch.linspace(-hs, hs, n, dtype=torch.float64)

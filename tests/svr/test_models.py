@@ -16,7 +16,7 @@ from svr.data.types import SVRBatch
 from svr.models import BlockRefiner, ImageEncoder, SDFDecoder, SDFRefiner, SVRNet, sphere_template
 from svr.models.decoder import linear_upsample_matrix, upsample2_centres, upsample_grid
 from svr.models.refiner import fold_blocks, unfold_blocks
-from svr.checkpoints import load_checkpoint, load_network
+from svr.inference.checkpoints import load_checkpoint, load_network
 from svr.models.module import SVRLightningModule
 
 CONFIGS = str(Path(__file__).resolve().parents[2] / "configs")

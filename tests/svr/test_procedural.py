@@ -10,14 +10,14 @@ import pytest
 import torch
 
 import renderer
-import svr.data.procedural as procedural
-from svr.data.csg import (BOX, CAPSULE, CONE, CYLINDER, SPHERE, TORUS, CSGBuilder, CSGShape, rotation,
+import svr.data.procedural.generator as procedural
+from svr.data.procedural.csg import (BOX, CAPSULE, CONE, CYLINDER, SPHERE, TORUS, CSGBuilder, CSGShape, rotation,
                           surface_normals, trace_rays)
 from svr.data.nmr import NMRDataset, nmr_file
-from svr.data.procedural import (ALL_CATEGORIES, DEFAULT_SHADING, ProceduralSettings, load_shading, make_shape,
+from svr.data.procedural.generator import (ALL_CATEGORIES, DEFAULT_SHADING, ProceduralSettings, load_shading, make_shape,
                                  render_shape, voxelize_shape)
-from sdfcommon.geometry import sdf_to_mesh
-from svr.geometry import voxels_to_sdf
+from sdfcommon.numerics.meshing import sdf_to_mesh
+from svr.evaluation.voxels import voxels_to_sdf
 
 from .conftest import asymmetric_shape
 
@@ -48,7 +48,7 @@ def _profile_distance(rho: np.ndarray, y: np.ndarray, corners: list[tuple[float,
 
 
 def _exact_outside(kind: int, params: list[float], p: np.ndarray) -> np.ndarray:
-    """Distance from points outside a primitive to it, written independently of svr.data.csg
+    """Distance from points outside a primitive to it, written independently of svr.data.procedural.csg
     (a negative value, not the distance, inside)."""
     rho, y = np.hypot(p[:, 0], p[:, 2]), p[:, 1]
     if kind == SPHERE:
@@ -268,7 +268,7 @@ def test_protocol_voxel_rule_makes_the_benchmark_protocol_exact():
     """With voxel_rule="protocol" the ground truth holds the centre-rule voxels plus the surface
     layer, and the protocol IoU of an exact 64^3 prediction is close to 1 (it is ~0.6 with the
     centre rule: tests/svr/test_metrics.py)."""
-    from svr.metrics import iou_protocol
+    from svr.evaluation.metrics import iou_protocol
 
     shape = make_shape("mug", [6])
     centre = voxelize_shape(shape)
@@ -343,7 +343,7 @@ def test_cache_folders_and_files_follow_the_umask(tmp_path, umask_022):
 
 GENERATE = """
 import sys
-from svr.data.procedural import ProceduralSettings, ensure_procedural_dataset
+from svr.data.procedural.generator import ProceduralSettings, ensure_procedural_dataset
 if __name__ == "__main__":
     settings = ProceduralSettings(categories=("table", "mug"), train=17, val=1, test=2, seed=5, supersample=1)
     print(ensure_procedural_dataset(sys.argv[1], settings, progress=False, workers=int(sys.argv[2])))
@@ -409,7 +409,7 @@ def test_data_generation_leaves_numba_on_the_renderers_thread_pool():
     import sys
 
     code = ("import numba, numpy as np, torch\n"
-            "from svr.data.procedural import make_shape, render_shape\n"
+            "from svr.data.procedural.generator import make_shape, render_shape\n"
             "render_shape(make_shape('mug', 0), supersample=1)\n"
             "print(numba.threading_layer())\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)

@@ -17,9 +17,9 @@ import pytorch_lightning as pl
 import torch
 from omegaconf import OmegaConf
 
-from svr.checkpoints import load_checkpoint
-from svr.resume import latest_checkpoint, resume_arguments, resume_config, run_folder_of, slurm_arguments
-from svr.training import TrainingStopped, train
+from svr.inference.checkpoints import load_checkpoint
+from svr.training.resume import latest_checkpoint, resume_arguments, resume_config, run_folder_of, slurm_arguments
+from svr.training.stages import TrainingStopped, train
 
 from .test_train import compose_train, state, tiny_overrides
 
@@ -190,7 +190,7 @@ def test_stale_temporaries_are_removed(tmp_path, data_overrides):
     left = run / "coarse" / "checkpoints" / ".last.ckpt.0123456789abcdef.tmp"  # the checkpoint writer's
     left.parent.mkdir(parents=True)
     left.write_bytes(b"half a checkpoint")
-    left_too = run / ".config.yaml.ab_12xyz.tmp"  # mkstemp's (sdfcommon.outputs.atomic_write)
+    left_too = run / ".config.yaml.ab_12xyz.tmp"  # mkstemp's (sdfcommon.tooling.outputs.atomic_write)
     left_too.write_text("half")
     keep = run / "notes.tmp"  # not an atomic writer's name
     keep.write_text("mine")

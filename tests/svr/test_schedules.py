@@ -1,10 +1,10 @@
-"""svr.schedules: the warm-up + cosine learning-rate curve, its resumption and bad arguments."""
+"""svr.training.lr_schedules: the warm-up + cosine learning-rate curve, its resumption and bad arguments."""
 from __future__ import annotations
 
 import pytest
 import torch
 
-from svr.schedules import warmup_cosine
+from svr.training.lr_schedules import warmup_cosine
 
 
 def _lrs(sched, opt, steps):

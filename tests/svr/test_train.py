@@ -16,10 +16,10 @@ import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
 
-from svr.callbacks import AtomicCheckpointIO
-from svr.checkpoints import load_checkpoint
+from svr.training.callbacks import AtomicCheckpointIO
+from svr.inference.checkpoints import load_checkpoint
 from svr.models.module import SVRLightningModule
-from svr.training import build_module, build_trainer, train
+from svr.training.stages import build_module, build_trainer, train
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIGS = str(REPO / "configs")

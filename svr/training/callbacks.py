@@ -9,12 +9,12 @@ import pytorch_lightning as pl
 import torch
 from pytorch_lightning.plugins.io import TorchCheckpointIO
 
-from sdfcommon.outputs import write_torch
-from sdfcommon.pictures import labelled_grid
+from sdfcommon.tooling.outputs import write_torch
+from sdfcommon.tooling.pictures import labelled_grid
 
 
 class AtomicCheckpointIO(TorchCheckpointIO):
-    """Writes each checkpoint atomically (``sdfcommon.outputs.atomic_write``: a temporary file in the
+    """Writes each checkpoint atomically (``sdfcommon.tooling.outputs.atomic_write``: a temporary file in the
     target's folder, flushed to disk, then renamed over the target; its mode follows the umask).
 
     Lightning's own writer goes through fsspec, whose local transaction stages the bytes in the
@@ -34,7 +34,7 @@ def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4, min_tile
     """One labelled picture of a training batch: per sample a row with the input view, then per
     supervised view the target silhouette, the rendered silhouette and (when rendered) the target and
     rendered colours, all at the render size (the input is area-resized to it), each tile scaled up
-    to at least ``min_tile`` pixels (``sdfcommon.pictures.labelled_grid``).
+    to at least ``min_tile`` pixels (``sdfcommon.tooling.pictures.labelled_grid``).
 
     Args:
         visuals: ``input`` (B, 4, H, W), ``target`` (B, V, 4, h, w), ``silhouette`` (B, V, h, w),

@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from .models.network import SVRNet
+from svr.models.network import SVRNet
 
 STAGES = ("coarse", "refine", "joint")
 CHECKPOINT_KEY = "sdfdiff"
@@ -34,7 +34,7 @@ def load_checkpoint(path, map_location: str | torch.device = "cpu") -> dict[str,
     """
     from pathlib import Path
 
-    from sdfcommon.serialization import load_torch
+    from sdfcommon.tooling.serialization import load_torch
 
     p = Path(path)
     ckpt = load_torch(p, map_location)  # weights only; errors name the file, never advise unsafe loading

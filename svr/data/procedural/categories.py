@@ -34,7 +34,7 @@ from typing import Callable, Sequence, Union
 
 import numpy as np
 
-from .csg import CSGBuilder, CSGShape, rotation
+from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
 
 Seed = Union[int, Sequence[int]]
 

@@ -1,8 +1,8 @@
 """The trained network, used: network -> prediction.
 
-``load_model`` reads a checkpoint (``svr.checkpoints``) onto a device; ``predict_sdf`` runs the
+``load_model`` reads a checkpoint (``svr.inference.checkpoints``) onto a device; ``predict_sdf`` runs the
 network on images in batches without gradients and closes the shapes at the normalisation cube
-(``svr.geometry.clip_to_box``); ``predict`` gives ``renderer.SDFGrid``s. Evaluation, inference and
+(``svr.evaluation.voxels.clip_to_box``); ``predict`` gives ``renderer.SDFGrid``s. Evaluation, inference and
 the demo all predict through here, so they score and show the same shapes.
 """
 from __future__ import annotations
@@ -15,11 +15,11 @@ from typing import Optional, Union
 import torch
 
 import renderer
-from sdfcommon.checks import check_int
-from sdfcommon.serialization import scrub_unsafe_advice
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.serialization import scrub_unsafe_advice
 
-from .checkpoints import load_network
-from .models.network import SVRNet, SVRPrediction
+from svr.inference.checkpoints import load_network
+from svr.models.network import SVRNet, SVRPrediction
 
 PathLike = Union[str, os.PathLike]
 
@@ -97,7 +97,7 @@ def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "au
     """Loads one of our checkpoints (made on a CPU or a GPU) onto ``device`` for inference.
 
     The network is rebuilt from the model config stored in the checkpoint
-    (``svr.checkpoints.load_network``), so no config is needed here.
+    (``svr.inference.checkpoints.load_network``), so no config is needed here.
 
     Raises:
         FileNotFoundError naming the file; ValueError naming the file when it is corrupt, truncated
@@ -164,7 +164,7 @@ def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
         batch_size: images per forward pass.
         refine: run the refiner (default: ``model.uses_refiner``).
         clip: intersect the shapes with the cube the objects are normalised into
-            (``svr.geometry.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
+            (``svr.evaluation.voxels.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
             output of this module and ``svr.evaluate`` goes through it.
     Returns:
         SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32
@@ -184,7 +184,7 @@ def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
     coarse_t = torch.cat(coarse)
     refined_t = torch.cat(refined) if use_refiner else None
     if clip:
-        from .geometry import clip_to_box
+        from svr.evaluation.voxels import clip_to_box
 
         hs = m.half_side
         coarse_t = clip_to_box(coarse_t, -hs, hs)

@@ -15,10 +15,10 @@ from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
-from sdfcommon.outputs import ensure_output_dir, write_csv, write_json, write_text
+from sdfcommon.tooling.outputs import ensure_output_dir, write_csv, write_json, write_text
 
-from .data.nmr import NMR_CATEGORIES, NUM_VIEWS
-from .metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table
+from svr.data.nmr import NMR_CATEGORIES, NUM_VIEWS
+from svr.evaluation.metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table
 
 PathLike = Union[str, os.PathLike]
 NMR_CATEGORY_IDS = frozenset(cid for cid, _ in NMR_CATEGORIES)
@@ -68,7 +68,7 @@ class EvaluationResult:
         category, object_index, view: (M,) int64.
         iou: (M,) float64 benchmark IoU of ``output``; iou_coarse: (M,) of the coarse SDF, or None.
         voxels: (M, 32, 32, 32) bool predicted voxels (NMR frame) of ``output``, if kept.
-        baselines: baseline name (``svr.baselines.BASELINES``) -> (M,) float64 IoU on the same images
+        baselines: baseline name (``svr.evaluation.baselines.BASELINES``) -> (M,) float64 IoU on the same images
             (``add_baselines``).
         views_per_object: views evaluated per object (24 for the protocol).
         full_protocol: every view of every object was evaluated (no thinning).
@@ -95,7 +95,7 @@ class EvaluationResult:
 
     @property
     def table(self) -> IoUTable:
-        """Per-category IoU of ``output`` and their unweighted mean (``svr.metrics.iou_table``)."""
+        """Per-category IoU of ``output`` and their unweighted mean (``svr.evaluation.metrics.iou_table``)."""
         return iou_table(self.iou, self.category, self.categories)
 
     @property
@@ -192,7 +192,7 @@ class EvaluationResult:
         if coarse is not None:
             out["coarse"] = summary(coarse)
         if self.baselines:
-            from .baselines import DESCRIPTIONS, LABELS
+            from svr.evaluation.baselines import DESCRIPTIONS, LABELS
 
             out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
                                        **summary(self.baseline_table(name))} for name in self.baselines}
@@ -218,7 +218,7 @@ def _check_extra(extra_rows: ExtraRows) -> dict[str, IoUTable]:
     out = dict(extra_rows or {})
     for label, t in out.items():
         if not isinstance(t, IoUTable):
-            raise TypeError(f"extra_rows[{label!r}] must be a svr.metrics.IoUTable, got {type(t).__name__}")
+            raise TypeError(f"extra_rows[{label!r}] must be a svr.evaluation.metrics.IoUTable, got {type(t).__name__}")
     return out
 
 
@@ -230,7 +230,7 @@ def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
 
     Args:
         extra_rows: more methods scored on the same images (e.g. a demo's baselines): label ->
-            IoUTable (``svr.metrics.iou_table``), matched to the columns by category id.
+            IoUTable (``svr.evaluation.metrics.iou_table``), matched to the columns by category id.
         label: the main row's label (default "ours (<output>)").
     """
     cols = result.present
@@ -242,7 +242,7 @@ def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
         rows.append(["ours (coarse)"] + [format_iou(coarse.rows[c].iou) for c in cols] + [format_iou(coarse.mean)])
     named = list(_check_extra(extra_rows).items())
     if result.baselines:
-        from .baselines import LABELS
+        from svr.evaluation.baselines import LABELS
 
         named += [(LABELS[name], result.baseline_table(name)) for name in result.baselines]
     minus = result.minus_retrieval()
@@ -267,7 +267,7 @@ def table_notes(result: EvaluationResult) -> list[str]:
         notes.append(f"Thinned run ({result.views_per_object} views per object or fewer objects): "
                      "not the benchmark protocol's number.")
     if result.baselines:
-        from .baselines import DESCRIPTIONS, LABELS
+        from svr.evaluation.baselines import DESCRIPTIONS, LABELS
 
         notes.append("Baselines, scored on the same images by the same protocol: " + "; ".join(
             f"{LABELS[n]}: {DESCRIPTIONS[n]}" for n in result.baselines) + ".")
@@ -310,7 +310,7 @@ def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: 
 def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: ExtraRows = None,
                  label: Optional[str] = None) -> dict[str, Path]:
     """Writes ``table.md``, ``table.csv``, ``iou.json``, ``per_object.csv`` (worst first) and
-    ``per_image.csv`` into ``output_dir``, each atomically (``sdfcommon.outputs``: temp file + ``os.replace``;
+    ``per_image.csv`` into ``output_dir``, each atomically (``sdfcommon.tooling.outputs``: temp file + ``os.replace``;
     non-finite numbers become JSON null). ``extra_rows`` (see ``table_rows``) also go into the JSON
     under ``"extra"``.
 

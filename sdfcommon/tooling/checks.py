@@ -1,6 +1,6 @@
 """Argument checks whose errors name the argument and what was expected (ValueError/TypeError).
 
-Used by the Python APIs and, through ``sdfcommon.cli``'s config getters, by the entry points, so a
+Used by the Python APIs and, through ``sdfcommon.tooling.commands``'s config getters, by the entry points, so a
 value is judged by one rule whichever way it arrives.
 """
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Pure functions (no state, no I/O). The protocol (SPEC section 5):
 
-1. the predicted SDF grid -> marching-cubes mesh (``sdfcommon.geometry.sdf_to_mesh``, closed at the box);
+1. the predicted SDF grid -> marching-cubes mesh (``sdfcommon.numerics.meshing.sdf_to_mesh``, closed at the box);
 2. the mesh -> 32^3 solid voxels in the NMR frame by the benchmark's rules
-   (``svr.geometry.voxelize_mesh_nmr``: dilated surface voxels, vertex voxels, 6-connected fill);
+   (``svr.evaluation.voxels.voxelize_mesh_nmr``: dilated surface voxels, vertex voxels, 6-connected fill);
 3. IoU per test image ``|pred & gt| / |pred | gt|`` (every one of the 24 views of every object is a
    prediction); category IoU = mean over its images; the reported mean = unweighted mean over the
    categories.
@@ -23,7 +23,7 @@ from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 import torch
 
-from .geometry import NMR_VOXEL_RESOLUTION, BoundLike, voxelize_sdf_direct, voxelize_sdf_protocol
+from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, BoundLike, voxelize_sdf_direct, voxelize_sdf_protocol
 
 ArrayLike = Union[np.ndarray, torch.Tensor]
 

@@ -15,11 +15,11 @@ from typing import Any, Mapping, Optional, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from .checkpoints import STAGES
+from svr.inference.checkpoints import STAGES
 
 log = logging.getLogger(__name__)
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 
 
 def run_folder_of(ckpt_path: str | Path) -> Optional[Path]:

@@ -1,5 +1,5 @@
 """The benchmark's geometry: clipping to the object box, the NMR voxel frame and voxelisation
-(SPEC section 5). Marching cubes lives in ``sdfcommon.geometry``."""
+(SPEC section 5). Marching cubes lives in ``sdfcommon.numerics.meshing``."""
 from __future__ import annotations
 
 from typing import Union
@@ -7,7 +7,7 @@ from typing import Union
 import numpy as np
 import torch
 
-from sdfcommon.geometry import BoundLike, sdf_to_mesh
+from sdfcommon.numerics.meshing import BoundLike, sdf_to_mesh
 
 # Objects are normalised into [-0.5, 0.5]^3 (longest side 1), where the outermost benchmark voxel
 # centres lie. A quarter voxel (1/31) beyond them keeps those centres inside and stays within the

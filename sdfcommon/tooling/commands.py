@@ -51,11 +51,11 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 
-from .checks import check_field_types, check_float, check_int
-from .outputs import atomic_write, make_writable_folder
-from .serialization import scrub_unsafe_advice
+from sdfcommon.tooling.checks import check_field_types, check_float, check_int
+from sdfcommon.tooling.outputs import atomic_write, make_writable_folder
+from sdfcommon.tooling.serialization import scrub_unsafe_advice
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 USAGE_ERROR = 2
 # Files a run writes about itself (not results): cleaned after a failed run that wrote nothing else.
 RUN_RECORDS = ("config.yaml", "settings.json")

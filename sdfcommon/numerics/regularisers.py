@@ -6,7 +6,7 @@ section 5).
 
 Grids are (B, N, N, N) in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``),
 world units, on a cubic lattice of spacing ``voxel_size``. On the CPU both terms and their backward
-run as one numba operation (``sdfcommon.band_kernel``); the torch path here is its specification.
+run as one numba operation (``sdfcommon.numerics.band_kernel``); the torch path here is its specification.
 """
 from __future__ import annotations
 
@@ -122,10 +122,10 @@ def band_regularisers(sdf: torch.Tensor, voxel_size: float, mu: Optional[float] 
                       fused: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
     """``(eikonal_loss, laplacian_loss)`` of the same grids from one band (``mu=None``: every
     interior vertex); each alone below. On the CPU with ``fused`` (and numba present) both terms
-    and their backward run as one operation (``sdfcommon.band_kernel``); otherwise, and as the
+    and their backward run as one operation (``sdfcommon.numerics.band_kernel``); otherwise, and as the
     specification it is tested against, one gather of the stencils and a matrix product."""
     if fused and sdf.device.type == "cpu" and sdf.dtype in (torch.float32, torch.float64):
-        from . import band_kernel
+        from sdfcommon.numerics import band_kernel
 
         if band_kernel.available():
             base, h = band_vertices(sdf, voxel_size, mu)

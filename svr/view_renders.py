@@ -12,10 +12,10 @@ from typing import Optional, Sequence
 import torch
 
 import renderer
-from sdfcommon.checks import check_int
-from sdfcommon.regularisers import check_grid
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.numerics.regularisers import check_grid
 
-from .data.nmr import check_view_ids
+from svr.data.nmr import check_view_ids
 
 PREVIEW_VIEWS = (0, 6, 12, 18)  # NMR views: azimuth 0, -90, -180, -270 degrees
 # The renders of the prediction: a neutral grey material lit from each camera (every view alike).

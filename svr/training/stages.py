@@ -3,7 +3,7 @@ entry point: ``python train.py`` / ``sdfdiff-train`` (``main``: hydra composes c
 with the overrides; ``run`` trains in hydra's run folder, ``outputs/train/<time>`` by default, one
 folder per job with ``-m``). ``train`` is the body (also of ``python -m svr.demo``): it reads the
 config and instantiates everything else (``_target_``) into plain objects. Resuming a run:
-``svr.resume``.
+``svr.training.resume``.
 
 Run folder layout (``run_dir``)::
 
@@ -26,7 +26,6 @@ from __future__ import annotations
 import contextlib
 import csv
 import logging
-import os
 import signal
 import sys
 import threading
@@ -43,17 +42,16 @@ from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
-from sdfcommon.cli import hydra_entry
-from sdfcommon.host_memory import keep_freed_memory
-from sdfcommon.outputs import remove_stale_temporaries, write_csv, write_text
+from sdfcommon.tooling.host_memory import keep_freed_memory
+from sdfcommon.tooling.outputs import remove_stale_temporaries, write_csv, write_text
 
-from .callbacks import AtomicCheckpointIO
-from .checkpoints import CHECKPOINT_KEY, STAGES, check_stage, load_checkpoint, load_network_weights
-from .distributed import launch_rank_is_zero
-from .losses import LossWeights
-from .models.module import SVRLightningModule
-from .models.network import SVRNet
-from .resume import latest_checkpoint, resume_arguments, resumed_config, run_folder_of, slurm_arguments
+from svr.training.callbacks import AtomicCheckpointIO
+from svr.inference.checkpoints import CHECKPOINT_KEY, STAGES, check_stage, load_checkpoint, load_network_weights
+from svr.distributed import launch_rank_is_zero
+from svr.losses import LossWeights
+from svr.models.module import SVRLightningModule
+from svr.models.network import SVRNet
+from svr.training.resume import latest_checkpoint, resume_arguments, resumed_config, run_folder_of, slurm_arguments
 
 log = logging.getLogger(__name__)
 
@@ -507,45 +505,5 @@ def _stopped(trainer: pl.Trainer, stage: str, run_dir: Path, checkpoint: Optiona
     return TrainingStopped(message, checkpoint=checkpoint)
 
 
-# ------------------------------------------------------------------------------------------------
-# The entry point: python train.py / sdfdiff-train
-
-
-def run(cfg: DictConfig) -> float | None:
-    """Trains in hydra's run folder (see the module docstring); returns the last stage's best
-    validation IoU (for hydra sweepers)."""
-    from hydra.core.hydra_config import HydraConfig
-
-    hydra_cfg = HydraConfig.get()
-    run_dir = Path(hydra_cfg.runtime.output_dir)
-    # Rank zero only: it writes config.yaml before the other processes of a DDP run start or look.
-    if cfg.get("ckpt_path") is None and launch_rank_is_zero() and (run_dir / "config.yaml").is_file():
-        raise ValueError(f"hydra.run.dir={run_dir} already holds a training run: resume it with "
-                         f"ckpt_path={run_dir}, or give another hydra.run.dir")
-    cfg = resumed_config(cfg, run_dir, list(hydra_cfg.overrides.task))
-    result = train(cfg, run_dir)
-    for s in result.stages:
-        log.info("%s: best val IoU %s  best %s  final %s", s.stage, s.best_val_iou, s.best, s.final)
-    print(f"run folder: {result.run_dir}")
-    return result.stages[-1].best_val_iou if result.stages else None
-
-
-_hydra_main = hydra_entry("sdfdiff-train", "train", run)
-
-
-def main() -> None:
-    """``python train.py`` / ``sdfdiff-train``: SLURM and resume settings (``slurm_arguments``,
-    ``resume_arguments``) added to the command line, then hydra and ``run`` under the shared error
-    handling of every entry point (``sdfcommon.cli``: a user's mistake is one line, exit status 2;
-    a SIGTERM exits 143)."""
-    argv = list(sys.argv)
-    sys.argv.extend(slurm_arguments(sys.argv[1:], os.environ))
-    sys.argv.extend(resume_arguments(sys.argv[1:]))
-    try:
-        _hydra_main()
-    finally:
-        sys.argv[:] = argv
-
-
-__all__ = ["train", "run", "main", "StageResult", "TrainResult", "TrainingStopped", "build_module", "build_scene",
+__all__ = ["train", "StageResult", "TrainResult", "TrainingStopped", "build_module", "build_scene",
            "build_trainer", "plan_schedule"]

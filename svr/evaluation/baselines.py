@@ -5,7 +5,7 @@ A learnt model's IoU means little alone. These rows bound it on the same data (S
 * ``mean_shape``: one shape for every input: the training objects' mean occupancy, thresholded at
   the level whose protocol voxels fit the training objects best.
 * ``category_mean_shape``: one shape per category, the mean of the category's training signed
-  distance grids (``svr.geometry.voxels_to_sdf`` of their voxels) at the iso-level that fits them
+  distance grids (``svr.evaluation.voxels.voxels_to_sdf`` of their voxels) at the iso-level that fits them
   best. It is told the category, which the model is not: an optimistic version of the above.
 * ``retrieval``: for each test image, the training object whose stored silhouette in the same view
   is most similar (soft IoU of the alpha channels at 32^2) to the input's alpha; its ground-truth
@@ -13,7 +13,7 @@ A learnt model's IoU means little alone. These rows bound it on the same data (S
   bar a learnt model must clear to show it learnt shape rather than looked it up (published on NMR
   ShapeNet: 0.4766 mean IoU).
 * ``oracle``: the exact (analytic) shape's SDF sampled on the model's grid, clipped to the object
-  box as predictions are (``svr.geometry.clip_to_box``), through the protocol: the ceiling of what a
+  box as predictions are (``svr.evaluation.voxels.clip_to_box``), through the protocol: the ceiling of what a
   model with that grid can score. Procedural data only (it needs the analytic shapes).
 
 The two mean shapes are predicted as SDFs and go through the protocol (marching cubes, the
@@ -29,7 +29,7 @@ from typing import Callable, Mapping, Optional, Sequence
 import numpy as np
 import torch
 
-from .metrics import voxel_iou, voxels_protocol
+from svr.evaluation.metrics import voxel_iou, voxels_protocol
 
 BASELINES: tuple[str, ...] = ("mean_shape", "category_mean_shape", "retrieval", "oracle")
 LABELS: Mapping[str, str] = {
@@ -83,14 +83,14 @@ def _best_shape(candidates: Sequence[torch.Tensor], objects, indices: Sequence[i
 
 def protocol_voxels_of_voxels(voxels) -> torch.Tensor:
     """What the benchmark protocol makes of a voxel shape predicted as an SDF: its signed distance
-    grid (``svr.geometry.voxels_to_sdf``) -> marching cubes -> the benchmark's voxelisation.
+    grid (``svr.evaluation.voxels.voxels_to_sdf``) -> marching cubes -> the benchmark's voxelisation.
 
     Args:
         voxels: (32, 32, 32) bool (NMR frame).
     Returns:
         (32, 32, 32) bool (NMR frame).
     """
-    from .geometry import voxels_to_sdf
+    from svr.evaluation.voxels import voxels_to_sdf
 
     values, lo, hi = voxels_to_sdf(np.asarray(voxels, dtype=bool))
     return voxels_protocol(torch.from_numpy(values), lo, hi)[0]
@@ -134,7 +134,7 @@ def category_mean_shapes(train) -> dict[int, torch.Tensor]:
     Returns:
         {category index: (32, 32, 32) bool protocol voxels}, for the categories with objects.
     """
-    from .geometry import voxels_to_sdf
+    from svr.evaluation.voxels import voxels_to_sdf
 
     out = {}
     for c, count in enumerate(train.counts):
@@ -210,8 +210,8 @@ def oracle_voxels(root, category_id: str, split: str, index: int, half_side: flo
     Returns:
         (32, 32, 32) bool (NMR frame).
     """
-    from .data.procedural import dataset_shape
-    from .geometry import clip_to_box
+    from svr.data.procedural.generator import dataset_shape
+    from svr.evaluation.voxels import clip_to_box
 
     shape = dataset_shape(root, category_id, split, index)
     axis = np.linspace(-half_side, half_side, grid_resolution)
@@ -225,7 +225,7 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
 
     Args:
         names: baselines to score (``BASELINES``); "oracle" is skipped where the data is not a
-            generated procedural dataset (``svr.data.procedural.is_procedural_dataset``: real NMR data).
+            generated procedural dataset (``svr.data.procedural.generator.is_procedural_dataset``: real NMR data).
         result: ``svr.evaluate.EvaluationResult`` (its category, object_index and view arrays).
         objects: the evaluated split's dataset; train: the training split of the same data
             (same categories, same order).
@@ -266,7 +266,7 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
                 ious[k] = float(voxel_iou(train.voxels(int(t)), gt[int(g)]))
             out[name] = ious
         elif name == "oracle":
-            from .data.procedural import is_procedural_dataset
+            from svr.data.procedural.generator import is_procedural_dataset
 
             if not is_procedural_dataset(objects.root):
                 continue

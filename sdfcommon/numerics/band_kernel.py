@@ -1,6 +1,6 @@
 """The narrow-band eikonal and Laplacian terms as one fused CPU operation (numba).
 
-``sdfcommon.regularisers.band_regularisers`` is the specification: the same band (found with torch), the same
+``sdfcommon.numerics.regularisers.band_regularisers`` is the specification: the same band (found with torch), the same
 7-point stencils and the same means; this computes them in one pass over the band's vertices and
 writes the backward as one scatter of each vertex's stencil weights into a zero grid, instead of
 autograd's gather, matrix product and index-put chain (several full-grid passes and temporaries).
@@ -15,7 +15,7 @@ import torch
 
 try:
     from numba import njit
-except ImportError:  # the torch path in sdfcommon.regularisers still works
+except ImportError:  # the torch path in sdfcommon.numerics.regularisers still works
     njit = None
 
 

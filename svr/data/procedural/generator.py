@@ -1,6 +1,6 @@
 """A procedural single-view dataset in the exact NMR ShapeNet layout.
 
-The 13 NMR ShapeNet categories (and two extras) as parametric CSG shapes (``svr.data.categories``),
+The 13 NMR ShapeNet categories (and two extras) as parametric CSG shapes (``svr.data.procedural.categories``),
 each in several styles, random but reproducible from a seed, normalised like ShapeNet (centred on
 the bounding box, longest side 1). Per object:
 
@@ -42,11 +42,11 @@ import torch
 
 from renderer import NMR_NUM_VIEWS as NUM_VIEWS
 
-from ..geometry import NMR_VOXEL_RESOLUTION, nmr_voxel_centres
-from .categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
+from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres
+from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
                          make_shape, procedural_category, style_of)
-from .csg import CSGShape, surface_normals, trace_rays
-from .types import ShadingModel
+from svr.data.procedural.csg import CSGShape, surface_normals, trace_rays
+from svr.data.types import ShadingModel
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
 GENERATOR_VERSION = 2
@@ -206,7 +206,7 @@ def voxelize_shape(shape: CSGShape, resolution: int = NMR_VOXEL_RESOLUTION, rule
     Args:
         rule: "centre" (SPEC section 5's definition): occupied iff the analytic SDF is negative at
             the voxel centre ``((j - c)/(R-1), (i - c)/(R-1), (c - k)/(R-1))``. "protocol": the
-            benchmark's voxelisation (``svr.geometry.voxelize_sdf_protocol``) of a marching-cubes
+            benchmark's voxelisation (``svr.evaluation.voxels.voxelize_sdf_protocol``) of a marching-cubes
             mesh of the analytic SDF sampled at ``mesh_resolution``^3: surface voxels included, so
             thin parts come out about one voxel thicker, as the protocol makes predictions.
     Returns:
@@ -216,7 +216,7 @@ def voxelize_shape(shape: CSGShape, resolution: int = NMR_VOXEL_RESOLUTION, rule
         pts = nmr_voxel_centres(resolution, dtype=torch.float64).numpy()
         return shape.sdf_numpy(pts) < 0.0
     if rule == "protocol":
-        from ..geometry import voxelize_sdf_protocol
+        from svr.evaluation.voxels import voxelize_sdf_protocol
 
         half = 0.5 + 2.0 / (resolution - 1)
         axis = np.linspace(-half, half, mesh_resolution)
@@ -241,7 +241,7 @@ class ProceduralSettings:
         supersample: rays per pixel side for anti-aliasing.
         voxel_rule: how the ground-truth voxels are made (``voxelize_shape``): "protocol" (the
             default: the benchmark's own voxelisation of the exact shape's mesh, so the exact shape
-            on the model's grid scores about 1 under ``svr.metrics.iou_protocol``) or "centre"
+            on the model's grid scores about 1 under ``svr.evaluation.metrics.iou_protocol``) or "centre"
             (SPEC 5's definition, centre inside; there an exact prediction scores about 0.6).
     """
 
@@ -331,7 +331,7 @@ def default_workers() -> int:
 
 def dataset_shape(root: Union[str, os.PathLike], category_id: str, split: str, index: int) -> CSGShape:
     """The exact (analytic) shape of object ``index`` of a category and split of a generated
-    dataset, rebuilt from its recorded seed (for the oracle baseline, ``svr.baselines``)."""
+    dataset, rebuilt from its recorded seed (for the oracle baseline, ``svr.evaluation.baselines``)."""
     settings = read_settings(root)
     names = dict(settings.category_pairs())
     if category_id not in names:
@@ -358,7 +358,7 @@ class _Chunk:
 
 def _make_chunk(chunk: _Chunk, settings: ProceduralSettings, shading: ShadingModel) -> tuple[np.ndarray, np.ndarray]:
     """Renders and voxelises one chunk: ((n, 24, 4, 64, 64) uint8, (n, 32, 32, 32) bool)."""
-    from .nmr import IMAGE_SHAPE, VOXEL_SHAPE
+    from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE
 
     n = chunk.stop - chunk.start
     images = np.zeros((n, *IMAGE_SHAPE), dtype=np.uint8)
@@ -379,7 +379,7 @@ def _worker_init() -> None:
 def _open_arrays(folder: Path, settings: ProceduralSettings) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
     """The (images, voxels) .npy memory maps of every category and split in a partial folder,
     created on first use (their final names: they become the prepared arrays of ``prepare_nmr``)."""
-    from .nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
+    from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
 
     arrays = {}
     for cid, _ in settings.category_pairs():
@@ -416,9 +416,9 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
 
     from tqdm.auto import tqdm
 
-    from sdfcommon.outputs import remove_stale_temporaries, write_json, write_npz
+    from sdfcommon.tooling.outputs import remove_stale_temporaries, write_json, write_npz
 
-    from .nmr import nmr_file
+    from svr.data.nmr import nmr_file
 
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise ValueError(f"workers must be an int >= 0, got {workers!r}")
@@ -478,7 +478,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
         else:
             from concurrent.futures import FIRST_COMPLETED, wait
 
-            from sdfcommon.processes import process_pool
+            from sdfcommon.tooling.processes import process_pool
 
             with process_pool(workers, initializer=_worker_init) as pool:  # workers die with this process
                 queue = list(reversed(todo))
