@@ -1,55 +1,53 @@
 """The training command, ``python train.py`` / ``sdfdiff-train`` (configs/train.yaml): hydra
-composes the config and ``run`` trains the three-stage schedule (``svr.training.stages.train``) in
-hydra's run folder, ``outputs/train/<time>`` by default, one folder per job with ``-m``."""
+composes the config, ``run`` gets it as ``TrainSettings``, writes the run's ``config.yaml`` and
+trains the three-stage schedule (``svr.training.stages.train``) in hydra's run folder:
+``<paths.output_dir>/train/<time>`` for a new run, the run's own folder when ``ckpt_path`` names
+one (a resume), one folder per job with ``-m``."""
 from __future__ import annotations
 
 import logging
 import os
-import sys
 from pathlib import Path
 
 from hydra.core.hydra_config import HydraConfig
-from omegaconf import DictConfig
+from omegaconf import OmegaConf
 
 from sdfcommon.tooling.commands import hydra_entry
+from sdfcommon.tooling.outputs import write_text
 from svr.distributed import launch_rank_is_zero
-from svr.training.resume import resume_arguments, resumed_config, slurm_arguments
+from svr.training.resume import requeued_run, resumed_settings
+from svr.training.run_folder import RunFolder
+from svr.training.settings import TrainSettings
 from svr.training.stages import train
 
 log = logging.getLogger(__name__)
 
 
-def run(cfg: DictConfig) -> float | None:
+def run(settings: TrainSettings) -> float | None:
     """Trains in hydra's run folder; returns the last stage's best validation IoU (for hydra
     sweepers)."""
     hydra_cfg = HydraConfig.get()
-    run_dir = Path(hydra_cfg.runtime.output_dir)
+    folder = RunFolder(Path(hydra_cfg.runtime.output_dir).resolve())
+    if settings.ckpt_path is None:
+        requeued = requeued_run(os.environ, settings.paths.output_dir)
+        if requeued is not None and requeued.root.resolve() == folder.root:
+            settings = settings.with_ckpt_path(str(folder.root))  # a requeued SLURM job goes on
     # Rank zero only: it writes config.yaml before the other processes of a DDP run start or look.
-    if cfg.get("ckpt_path") is None and launch_rank_is_zero() and (run_dir / "config.yaml").is_file():
-        raise ValueError(f"hydra.run.dir={run_dir} already holds a training run: resume it with "
-                         f"ckpt_path={run_dir}, or give another hydra.run.dir")
-    cfg = resumed_config(cfg, run_dir, list(hydra_cfg.overrides.task))
-    result = train(cfg, run_dir)
+    if settings.ckpt_path is None and launch_rank_is_zero() and folder.holds_run():
+        raise ValueError(f"hydra.run.dir={folder.root} already holds a training run: resume it with "
+                         f"ckpt_path={folder.root}, or give another hydra.run.dir")
+    settings, record = resumed_settings(settings, folder, list(hydra_cfg.overrides.task))
+    if launch_rank_is_zero():
+        folder.root.mkdir(parents=True, exist_ok=True)
+        write_text(folder.config, OmegaConf.to_yaml(record))
+    result = train(settings, folder.root)
     for s in result.stages:
         log.info("%s: best val IoU %s  best %s  final %s", s.stage, s.best_val_iou, s.best, s.final)
     print(f"run folder: {result.run_dir}")
     return result.stages[-1].best_val_iou if result.stages else None
 
 
-_hydra_main = hydra_entry("sdfdiff-train", "train", run)
-
-
-def main() -> None:
-    """``python train.py`` / ``sdfdiff-train``: SLURM and resume settings (``slurm_arguments``,
-    ``resume_arguments``) added to the command line, then hydra and ``run`` under the shared error
-    handling of every entry point (a user's mistake is one line, exit status 2; a SIGTERM exits 143)."""
-    argv = list(sys.argv)
-    sys.argv.extend(slurm_arguments(sys.argv[1:], os.environ))
-    sys.argv.extend(resume_arguments(sys.argv[1:]))
-    try:
-        _hydra_main()
-    finally:
-        sys.argv[:] = argv
+main = hydra_entry("train", run)
 
 
 if __name__ == "__main__":

@@ -1,44 +1,15 @@
-"""The one shape of every hydra entry point, and its one error handling.
-
-An entry point is a function that takes the composed config and does the work, and a ``main()``
-that is the hydra wrapper (as the lightning-hydra-template's ``train.py``)::
-
-    def run(cfg: DictConfig) -> Result: ...
-    main = hydra_entry("sdfdiff-infer", "infer", run)      # console script and ``python -m``
-
-``main()`` runs ``run(cfg)`` inside ``hydra.main`` and:
-
-* turns a user's mistake into ONE line on stderr, ``<prog>: error: <message>``, and exit status
-  ``USAGE_ERROR`` (2, as argparse): ValueError, TypeError, OSError (missing, unreadable or
-  unwritable files and folders), omegaconf's missing/invalid/unknown keys, a hydra instantiation
-  whose cause is one of those (the cause's message, named by the config key), PIL's
-  decompression-bomb error. Messages that wrap a ``torch.load`` failure lose torch's advice to load
-  with ``weights_only=False``. Anything else (a bug) keeps its traceback (hydra's, exit status 1).
-  ``SystemExit`` passes untouched (e.g. 143 after SIGTERM), as do KeyboardInterrupt and other
-  BaseExceptions.
-* leaves nothing of a failed run behind: when the run wrote nothing but its records (hydra's
-  ``.hydra/`` folder, ``*.log`` files, and ``records``: ``config.yaml`` and ``settings.json`` by
-  default, ``RUN_RECORDS``), those it created are deleted, those that existed before are restored
-  to their bytes (a log is cut back to its length), and the run folder goes if the run created it
-  and it is empty, with the empty folders made to hold it. What existed
-  before the command started is never deleted: a snapshot of the run folder is taken by
-  ``RunFolderGuard``, a hydra callback that ``main()`` adds, before hydra creates anything. A
-  failed run that wrote results (e.g. checkpoints) keeps its folder as it is. A run that succeeds
-  loses only its empty log files. Under ``-m`` (multirun) no snapshot is taken, so nothing is
-  cleaned.
-* checks, before hydra writes anything, that the run folder can be created and written (one line
-  naming it otherwise).
-
-Config getters that name the key and say what was expected: ``config_int(cfg, "batch_size",
-minimum=1)`` -> "batch_size must be an integer >= 1, got 'abc'"; ``config_float``, ``config_choice``,
-``config_ints``, ``config_object`` (instantiate a ``_target_`` node after checking its values
-against the dataclass's field types).
-
-The resolver ``${first_set:a,b,...}`` (registered on import) gives its first argument that is not
-null or empty: ``hydra.run.dir: ${first_set:${output_dir},outputs/infer/${now:...}}`` makes the
-run folder the output folder when one is given. ``${config_options:data}`` lists a config group's
-options (for an entry's own ``hydra.help.template``, which then names only the groups it uses).
-"""
+"""The command layer shared by every hydra command: ``hydra_entry(config_name, run)`` is a
+command's ``main()`` (hydra composes the shipped config, ``build_settings`` turns it into the
+command's typed settings, ``run(settings)`` works), and ``RunFolderGuard``, the hydra callback that
+``configs/hydra/default.yaml`` installs, gives every command one error handling: a user's mistake
+(ValueError, TypeError, OSError, omegaconf's missing or invalid keys, a hydra instantiation caused
+by one of those) is ONE line ``<prog>: error: <message>`` with exit status 2, checked before the run
+folder is made where it can be; a bug keeps hydra's traceback (exit status 1); ``SystemExit`` passes
+untouched (143 after SIGTERM). A failed run that wrote nothing but its records (``.hydra/``,
+``*.log``, ``RUN_RECORDS``) leaves nothing behind: what it created goes, what existed before is
+restored to its bytes; a run that wrote results keeps them. Resolvers registered on import:
+``${first_set:a,b}`` (the first argument that is set) and ``${config_options:group}`` (a group's
+options, for help texts)."""
 from __future__ import annotations
 
 import os
@@ -47,15 +18,27 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Optional, Sequence
 
+import importlib.resources
+
+import hydra
+from hydra import compose as hydra_compose
+from hydra import initialize_config_module
+from hydra.core.utils import JobReturn, JobStatus
+from hydra.errors import InstantiationException
 from hydra.experimental.callback import Callback
+from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 
 from sdfcommon.tooling.checks import check_field_types, check_float, check_int
 from sdfcommon.tooling.outputs import atomic_write, make_writable_folder
 from sdfcommon.tooling.serialization import scrub_unsafe_advice
+from sdfcommon.tooling.settings import build_settings
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
+# The configs ship with the package as the module ``sdfdiff_configs`` (the repository's configs/
+# folder, pyproject.toml's package-dir): console scripts find them wherever they run.
+CONFIG_MODULE = "sdfdiff_configs"
+CONFIG_PATH = f"pkg://{CONFIG_MODULE}"
 USAGE_ERROR = 2
 # Files a run writes about itself (not results): cleaned after a failed run that wrote nothing else.
 RUN_RECORDS = ("config.yaml", "settings.json")
@@ -94,8 +77,6 @@ def user_message(err: BaseException) -> Optional[str]:
     A hydra ``InstantiationException`` is judged by its cause (``raise ... from``) and named by its
     config key; one without a cause (a ``_target_`` that cannot be found) is a user's mistake.
     """
-    from hydra.errors import InstantiationException
-
     if isinstance(err, InstantiationException):
         cause = err.__cause__
         key = _full_key(err)
@@ -249,37 +230,62 @@ def _rmdir_if_empty(path: Path) -> None:
         pass
 
 
-class _RunState:
-    """What ``RunFolderGuard`` saw of the current command's run folder (one command at a time)."""
-
-    snapshot: Optional[RunFolderSnapshot] = None
-    prog: str = "sdfdiff"
-    records: tuple[str, ...] = RUN_RECORDS
-
-
-_RUN = _RunState()
-
-
 class RunFolderGuard(Callback):
-    """Hydra callback (added by ``hydra_entry``'s ``main()``): before hydra creates the run folder,
-    takes its snapshot (``RunFolderSnapshot``), then creates it and writes a probe file into it, so
-    that an unwritable run folder is one line and not hydra's traceback."""
+    """The hydra callback of every command (``configs/hydra/default.yaml``): the one error handling
+    and clean-up described in the module docstring.
+
+    Before hydra creates the run folder (``on_run_start``) it builds the command's settings once
+    (``build_settings``: an unknown or mistyped key is one line, and nothing is made), takes the
+    folder's snapshot and checks that the folder can be created and written. After the job
+    (``on_job_end``) it undoes a failed run's records and reports a user's mistake in one line;
+    a bug is left to hydra (its traceback, exit status 1). The command's name in messages is
+    ``hydra.help.app_name``.
+
+    Args:
+        records: names of the files the command writes at the top of the run folder about the run
+            itself (not results), besides hydra's ``.hydra/`` and ``*.log``.
+    """
+
+    def __init__(self, records: Sequence[str] = RUN_RECORDS) -> None:
+        self.records = tuple(records)
+        self.snapshot: Optional[RunFolderSnapshot] = None
 
     def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        prog = _prog(config)
         try:
             folder = Path(os.path.abspath(str(OmegaConf.select(config, "hydra.run.dir"))))
-        except Exception as err:  # e.g. output_dir=${nope}; left to hydra (a traceback) if not a user's
+            build_settings(config)
+        except Exception as err:
             message = user_message(err)
             if message is None:
-                return
-            _report(_RUN.prog, message)
-        snap = _RUN.snapshot = RunFolderSnapshot.take(folder, OmegaConf.select(config, "hydra.output_subdir"),
-                                                      _RUN.records)
-        try:  # hydra turns a callback's exception into a warning: report it here
+                raise
+            _report(prog, message)
+        snap = self.snapshot = RunFolderSnapshot.take(folder, OmegaConf.select(config, "hydra.output_subdir"),
+                                                      self.records)
+        try:
             make_writable_folder(folder)
         except OSError as err:
             snap.clean_after_failure()
-            _report(_RUN.prog, f"cannot write the run folder {folder} ({err.strerror or err})")
+            _report(prog, f"cannot write the run folder {folder} ({err.strerror or err})")
+
+    def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
+        snap = self.snapshot
+        if snap is not None and Path(config.hydra.runtime.output_dir).resolve() != snap.folder.resolve():
+            snap = None  # not the folder seen before the run (a multirun job): leave it alone
+        if job_return.status != JobStatus.FAILED:
+            if snap is not None:
+                snap.remove_new_empty_logs()
+            return
+        err = job_return._return_value  # the task's exception (hydra raises it after the callbacks)
+        if snap is not None:
+            snap.clean_after_failure()
+        message = user_message(err) if isinstance(err, BaseException) else None
+        if message is not None:
+            _report(_prog(config), message)
+
+
+def _prog(config: DictConfig) -> str:
+    return str(OmegaConf.select(config, "hydra.help.app_name", default=None) or "sdfdiff")
 
 
 def _report(prog: str, message: str) -> None:
@@ -287,85 +293,32 @@ def _report(prog: str, message: str) -> None:
     raise SystemExit(USAGE_ERROR)
 
 
-GUARD_OVERRIDE = f"+hydra.callbacks.sdfcommon_run_folder._target_={__name__}.RunFolderGuard"
-
-
-def run_task(prog: str, task: Callable[[DictConfig], Any], cfg: DictConfig) -> Any:
-    """Runs ``task(cfg)`` with the error handling and clean-up described in the module docstring
-    (inside ``hydra.main``; ``hydra_entry`` calls it)."""
-    from hydra.core.hydra_config import HydraConfig
-
-    snap = _RUN.snapshot
-    if snap is not None and HydraConfig.initialized() and \
-            Path(HydraConfig.get().runtime.output_dir).resolve() != snap.folder.resolve():
-        snap = None  # not the folder the guard saw (a multirun job): leave it alone
-    try:
-        result = task(cfg)
-    except Exception as err:
-        message = user_message(err)
-        if snap is not None:
-            snap.clean_after_failure()
-        if message is None:
-            raise
-        _report(prog, message)
-    if snap is not None:
-        snap.remove_new_empty_logs()
-    return result
-
-
 def compose(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
     """``configs/<config_name>.yaml`` composed with hydra ``overrides`` (hydra's compose API),
     outside a hydra run: for commands that compose their own config (the demo), benchmarks and data
     scripts. Entry points get theirs from ``hydra_entry``."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
-
-    with initialize_config_dir(config_dir=str(CONFIG_DIR), version_base="1.3"):
+    with initialize_config_module(config_module=CONFIG_MODULE, version_base="1.3"):
         return hydra_compose(config_name=config_name, overrides=list(overrides))
 
 
-def hydra_entry(prog: str, config_name: str, task: Callable[[DictConfig], Any],
-                config_dir: Path = CONFIG_DIR, records: Sequence[str] = RUN_RECORDS) -> Callable[[], None]:
-    """The ``main()`` of an entry point: hydra composes ``<config_dir>/<config_name>.yaml`` with the
-    command line and ``task(cfg)`` runs under ``run_task``'s error handling.
+def hydra_entry(config_name: str, run: Callable[[Any], Any], config_path: str = CONFIG_PATH) -> Callable[[], None]:
+    """The ``main()`` of a command: hydra composes ``<config_name>.yaml`` (of the configs shipped
+    with the package) with the command line, the composed config becomes the command's typed
+    settings (``build_settings``: its ``_target_`` dataclass) and ``run(settings)`` does the work.
+    The run-folder guard and the error handling come from the config (``RunFolderGuard``).
 
-    Args:
-        prog: the command's name in error lines (e.g. "sdfdiff-infer").
-        config_name: the primary config (e.g. "infer").
-        task: the function that takes the composed config and does the work.
-        config_dir: the folder of the configs (absolute: console scripts run from anywhere).
-        records: names of the files the task writes at the top of the run folder about the run
-            itself (not results), besides hydra's ``.hydra/`` and ``*.log``; a failed run that wrote
-            nothing else is undone.
     Returns:
-        ``main()``, for ``[project.scripts]`` and ``if __name__ == "__main__": main()``. It returns
-        None (hydra.main does not pass the task's result on); the exit status is 0 on success,
-        ``USAGE_ERROR`` (2) for a user's mistake, 1 for a bug, or the task's own ``SystemExit``.
+        ``main()``, for ``[project.scripts]`` and ``if __name__ == "__main__": main()``; the exit
+        status is 0 on success, ``USAGE_ERROR`` (2) for a user's mistake, 1 for a bug, or the
+        command's own ``SystemExit``.
     """
-    import hydra
 
-    @hydra.main(version_base="1.3", config_path=str(config_dir), config_name=config_name)
-    def _hydra_main(cfg: DictConfig) -> Any:
-        return run_task(prog, task, cfg)
+    @hydra.main(version_base="1.3", config_path=config_path, config_name=config_name)
+    def main(cfg: DictConfig) -> Any:
+        return run(build_settings(cfg))
 
-    def main() -> None:
-        _RUN.snapshot, _RUN.prog, _RUN.records = None, prog, tuple(records)
-        argv = list(sys.argv)
-        if GUARD_OVERRIDE not in sys.argv:
-            sys.argv.append(GUARD_OVERRIDE)
-        if not any(a.startswith("hydra.job.name=") for a in sys.argv[1:]):
-            # hydra names the job (and its log, <name>.log) after the file that holds hydra.main,
-            # which is this one for every entry point: name it after the command's config instead.
-            sys.argv.append(f"hydra.job.name={config_name}")
-        try:
-            _hydra_main()
-        finally:
-            sys.argv[:] = argv
-            _RUN.snapshot = None
-
-    main.__doc__ = f"``{prog}``: hydra reads {config_name}.yaml and the command-line overrides, then runs " \
-                   f"{getattr(task, '__module__', '')}.{getattr(task, '__name__', 'task')}."
-    main.__module__ = getattr(task, "__module__", __name__)
+    main.__doc__ = f"hydra reads {config_name}.yaml and the command line, then runs " \
+                   f"{getattr(run, '__module__', '')}.{getattr(run, '__name__', 'run')}(settings)."
     return main
 
 
@@ -431,8 +384,6 @@ def config_object(cfg: DictConfig, key: str, **kwargs: Any) -> Any:
     """Instantiates the ``_target_`` node at ``key`` (``hydra.utils.instantiate``), after checking
     its values against the target dataclass's field types (``check_field_types``): ``optim.lr=fast``
     -> "optim.lr must be a number, got 'fast'"."""
-    from hydra.utils import get_class, instantiate
-
     node = OmegaConf.select(cfg, key, throw_on_missing=True)
     values = config_value(cfg, key)
     if isinstance(values, dict) and "_target_" in values:
@@ -449,14 +400,30 @@ def _first_set(*values: Any) -> Any:
     return next((v for v in values if v is not None and v != ""), None)
 
 
+def config_folder() -> importlib.resources.abc.Traversable:
+    """The shipped configs folder (``configs/`` of the checkout in an editable install)."""
+    return importlib.resources.files(CONFIG_MODULE)
+
+
+def config_group_options(group: str) -> list[str]:
+    """The options of a config group (``data`` -> ["nmr", "procedural", ...]); [] for none."""
+    folder = config_folder()
+    for part in str(group).split("/"):
+        folder = folder / part
+    if not folder.is_dir():
+        return []
+    return sorted(p.name[:-len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
+
+
 def _config_options(group: str) -> str:
-    return ", ".join(sorted(p.stem for p in (CONFIG_DIR / str(group)).glob("*.yaml")))
+    return ", ".join(config_group_options(group))
 
 
 OmegaConf.register_new_resolver("first_set", _first_set, replace=True)
 OmegaConf.register_new_resolver("config_options", _config_options, replace=True)
 
 
-__all__ = ["hydra_entry", "compose", "run_task", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
+__all__ = ["hydra_entry", "compose", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
            "RunFolderGuard", "RunFolderSnapshot", "config_value", "config_int",
-           "config_float", "config_choice", "config_ints", "config_bool", "config_object", "CONFIG_DIR"]
+           "config_float", "config_choice", "config_ints", "config_bool", "config_object", "CONFIG_MODULE",
+           "config_folder", "config_group_options"]

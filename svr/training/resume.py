@@ -1,59 +1,24 @@
-"""Resuming a training run: which run a checkpoint belongs to, what it resumes from, and with which
-config.
-
-``ckpt_path=RUN`` (a run folder) or ``ckpt_path=RUN/<stage>/checkpoints/last.ckpt`` continues that
-run in its own folder (``resume_arguments`` points hydra's run folder at it and keeps its
-``.hydra/``), from its latest checkpoint, with its saved ``config.yaml``; the command line may
-change only ``RESUMABLE_KEYS`` (``resume_config``; each change logged as a warning). SLURM batch
-jobs get a run folder their requeued job finds and resumes (``slurm_arguments``).
-"""
+"""Resuming a training run: ``ckpt_path=RUN`` (a run folder) or a checkpoint inside one continues
+that run in its own folder (hydra's run folder is set to it by the ``train_run_dir`` resolver of
+configs/train.yaml), from its latest checkpoint, with its saved ``config.yaml``; the command line
+may change only ``RESUMABLE_KEYS`` (``resume_config``; each change logged as a warning). A SLURM
+batch job gets a run folder its requeued job finds and resumes (``slurm_run_folder``)."""
 from __future__ import annotations
 
 import logging
+import os
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
+from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, OmegaConf
 
-from svr.inference.checkpoints import STAGES
+from sdfcommon.tooling.commands import config_group_options
+from sdfcommon.tooling.settings import build_settings, settings_record
+from svr.training.run_folder import RunFolder, run_named_by
+from svr.training.settings import TrainSettings
 
 log = logging.getLogger(__name__)
-
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
-
-
-def run_folder_of(ckpt_path: str | Path) -> Optional[Path]:
-    """The training run a checkpoint belongs to: ``RUN`` for ``RUN/<stage>/checkpoints/<name>.ckpt``
-    (or ``RUN/<stage>/hpc_ckpt_<n>.ckpt``) when ``RUN/config.yaml`` exists (a folder this module
-    wrote); None otherwise."""
-    p = Path(ckpt_path).expanduser().resolve()
-    if p.parent.name == "checkpoints" and p.parent.parent.name in STAGES:
-        run = p.parent.parent.parent
-    elif p.name.startswith("hpc_ckpt_") and p.parent.name in STAGES:  # Lightning's SLURM checkpoints
-        run = p.parent.parent
-    else:
-        return None
-    return run if (run / "config.yaml").is_file() else None
-
-
-def run_named_by(ckpt_path: str | Path) -> Optional[Path]:
-    """The run a ``ckpt_path`` setting resumes: the folder itself when it holds a ``config.yaml``,
-    else the run its checkpoint belongs to (``run_folder_of``); None for neither."""
-    path = Path(ckpt_path).expanduser()
-    return path.resolve() if (path / "config.yaml").is_file() else run_folder_of(path)
-
-
-def latest_checkpoint(run_dir: str | Path, schedule: Sequence[str]) -> Optional[Path]:
-    """What a stopped run resumes from: the newest of ``last.ckpt``, ``final.ckpt`` and Lightning's
-    SLURM checkpoints (``<stage>/hpc_ckpt_<n>.ckpt``) of the latest scheduled stage that wrote one
-    (None: no stage has)."""
-    for stage in reversed(list(schedule)):
-        d = Path(run_dir) / stage / "checkpoints"
-        found = [d / n for n in ("final.ckpt", "last.ckpt") if (d / n).is_file()]
-        found += [f for f in (Path(run_dir) / stage).glob("hpc_ckpt_*.ckpt") if f.is_file()]
-        if found:
-            return max(found, key=lambda f: f.stat().st_mtime_ns)
-    return None
 
 
 # What may differ from a run's saved config when it is resumed: where and how fast it runs, and
@@ -93,8 +58,6 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
     Returns:
         (config, the changes made, "key: old -> new").
     """
-    from hydra.core.override_parser.overrides_parser import OverridesParser
-
     saved_leaves = _leaves(OmegaConf.to_container(saved, resolve=True))
     requested_leaves = _leaves(OmegaConf.to_container(requested, resolve=True))
     touched: list[str] = []
@@ -104,7 +67,7 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
             continue
         if o.is_delete():
             raise ValueError(f"{o.input_line}: a resumed run keeps its settings; ~ (delete) is not possible")
-        if (CONFIG_DIR / key).is_dir() and "." not in key:
+        if "." not in key and config_group_options(key):
             # A config group: its own key, or the whole config for a global one (experiment=...).
             touched.append(key if key in saved else "")
         else:
@@ -118,7 +81,12 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
     missing = object()
     for path in sorted(set(saved_leaves) | set(requested_leaves)):
         old, new = saved_leaves.get(path, missing), requested_leaves.get(path, missing)
-        if old == new or not requested_here(path):
+        if old == new or new is missing and not requested_here(path):
+            continue
+        if old is missing and not requested_here(path):  # a setting the saved run did not know yet
+            OmegaConf.update(merged, path, new, merge=False)
+            continue
+        if not requested_here(path):
             continue
         if not _may_change(path):
             refused.append(path)
@@ -132,75 +100,85 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
     return merged, changes
 
 
-def _override_value(argv: Sequence[str], key: str) -> Optional[str]:
-    """The value of a ``key=value`` (or ``+key=value``) command-line override, the last one wins."""
-    value = None
-    for arg in argv:
-        for prefix in (f"{key}=", f"+{key}=", f"++{key}="):
-            if arg.startswith(prefix):
-                value = arg[len(prefix):].strip("'\"")
-    return value
+def resumed_settings(settings: TrainSettings, run: RunFolder, overrides: Sequence[str]) -> tuple[TrainSettings, dict]:
+    """The settings a training command goes on with in ``run`` (hydra's run folder), and the record
+    to write as its ``config.yaml``.
 
-
-def resume_arguments(argv: Sequence[str]) -> list[str]:
-    """The hydra overrides that make a resume command run in the resumed run's own folder.
-
-    ``ckpt_path`` naming a run folder, or a checkpoint inside one, resumes that run: hydra's run
-    folder becomes it (unless ``hydra.run.dir`` is given: then the run is continued in a new
-    folder), and hydra does not rewrite its ``.hydra/``. Nothing for multirun (``-m``).
+    A fresh run: ``settings`` and their record. A run resumed in its own folder (``ckpt_path``
+    names it): its saved ``config.yaml`` with the changes the command line may make
+    (``resume_config``; each logged as a warning); the record keeps the ``ckpt_path`` the run
+    started from. Settings the saved run did not know yet take the requested values.
     """
-    if "-m" in argv or "--multirun" in argv or any(a.startswith("hydra.run.dir=") for a in argv):
-        return []
-    ckpt = _override_value(argv, "ckpt_path")
-    if ckpt in (None, "", "null"):
-        return []
-    run = run_named_by(ckpt)
-    if run is None:
-        return []
-    quoted = str(run).replace("\\", "\\\\").replace("'", "\\'")
-    return [f"hydra.run.dir='{quoted}'", "hydra.output_subdir=null"]
-
-
-def resumed_config(cfg: DictConfig, run_dir: Path, overrides: Sequence[str]) -> DictConfig:
-    """``cfg`` for a fresh run; for a run resumed in its own folder, the folder's ``config.yaml``
-    with the changes the command line may make (``resume_config``), each logged."""
-    ckpt = cfg.get("ckpt_path")
-    if ckpt is None:
-        return cfg
-    run = run_named_by(ckpt)
-    if run is None or run != run_dir.resolve():
-        return cfg
-    saved = OmegaConf.load(run / "config.yaml")
-    merged, changes = resume_config(saved, cfg, overrides)
+    record = settings_record(settings)
+    named = run_named_by(settings.ckpt_path) if settings.ckpt_path is not None else None
+    if named is None or named.root != run.root.resolve():
+        return settings, record
+    saved = OmegaConf.load(named.config)
+    merged, changes = resume_config(saved, OmegaConf.create(record), overrides)
     for change in changes:
-        log.warning("resuming %s with a changed setting: %s", run, change)
-    return merged
+        log.warning("resuming %s with a changed setting: %s", named.root, change)
+    merged_record = OmegaConf.to_container(merged, resolve=True)
+    resumed = build_settings(merged_record)
+    merged_record["ckpt_path"] = saved.get("ckpt_path")
+    return resumed, merged_record
 
 
-def slurm_arguments(argv: Sequence[str], environ: Mapping[str, str]) -> list[str]:
-    """The hydra overrides that let SLURM's requeue continue a run (as Lightning intends: on the
+def _is_set(value: Any) -> bool:
+    return value not in (None, "", "null", "None")
+
+
+def slurm_run_folder(environ: Mapping[str, str], output_dir: str) -> Optional[RunFolder]:
+    """The run folder of a SLURM batch job, ``<output_dir>/train/slurm-<job id>`` (``<array
+    job>_<task>`` for arrays), so that its requeued job finds it (as Lightning intends: on the
     signal SLURM sends before the time limit, ``#SBATCH --signal=SIGUSR1@90``, Lightning saves
     ``<stage>/hpc_ckpt_<n>.ckpt`` and requeues the job; at the limit, SIGTERM saves ``last.ckpt``).
-
-    In a SLURM batch job (not an interactive one, as Lightning tells them apart) the run folder is
-    ``outputs/train/slurm-<job id>`` (``<array job>_<task>`` for arrays) unless ``hydra.run.dir``
-    is given, so the requeued job finds it; when the job was requeued (``SLURM_RESTART_COUNT`` > 0)
-    and names no ``ckpt_path``, it resumes that folder's latest checkpoint.
-    """
+    None outside a batch job (interactive jobs, as Lightning tells them apart, included)."""
     job = environ.get("SLURM_JOB_ID")
     if not job or environ.get("SLURM_JOB_NAME") in ("bash", "interactive"):
-        return []
-    if "-m" in argv or "--multirun" in argv or any(a.startswith("hydra.run.dir=") for a in argv):
-        return []
+        return None
     if environ.get("SLURM_ARRAY_JOB_ID") and environ.get("SLURM_ARRAY_TASK_ID"):
         job = f"{environ['SLURM_ARRAY_JOB_ID']}_{environ['SLURM_ARRAY_TASK_ID']}"
-    run = Path("outputs") / "train" / f"slurm-{job}"
-    out = [f"hydra.run.dir={run}"]
+    return RunFolder(Path(output_dir) / "train" / f"slurm-{job}")
+
+
+def requeued_run(environ: Mapping[str, str], output_dir: str) -> Optional[RunFolder]:
+    """The run a requeued SLURM job (``SLURM_RESTART_COUNT`` > 0) goes on with, when its folder
+    holds one; None otherwise."""
+    run = slurm_run_folder(environ, output_dir)
     requeued = int(environ.get("SLURM_RESTART_COUNT") or 0) > 0
-    if requeued and _override_value(argv, "ckpt_path") in (None, "", "null") and (run / "config.yaml").is_file():
-        out += [f"ckpt_path={run}", "hydra.output_subdir=null"]
-    return out
+    return run if requeued and run is not None and run.holds_run() else None
 
 
-__all__ = ["run_folder_of", "run_named_by", "latest_checkpoint", "resume_config", "resumed_config", "resume_arguments",
-           "slurm_arguments", "RESUMABLE_KEYS"]
+def train_run_dir(ckpt_path: Any, output_dir: str, fresh: str) -> str:
+    """hydra's run folder for training (the resolver ``${train_run_dir:ckpt_path,output_dir,fresh}``
+    of configs/train.yaml): the run ``ckpt_path`` names (resuming it in its own folder), else a
+    SLURM batch job's folder (``slurm_run_folder``), else ``fresh`` (a new folder)."""
+    if _is_set(ckpt_path):
+        run = run_named_by(str(ckpt_path))
+        if run is not None:
+            return str(run.root)
+    slurm = slurm_run_folder(os.environ, output_dir)
+    return str(slurm.root) if slurm is not None else str(fresh)
+
+
+def train_output_subdir(ckpt_path: Any, run_dir: str) -> Optional[str]:
+    """hydra's record folder for training (``${train_output_subdir:ckpt_path,run_dir}``): none
+    when the run goes on in the folder of the run it resumes (its ``.hydra/`` keeps the record of
+    how it started), ``.hydra`` otherwise."""
+    folder = Path(str(run_dir)).expanduser().resolve()
+    if _is_set(ckpt_path):
+        run = run_named_by(str(ckpt_path))
+        if run is not None and run.root == folder:
+            return None
+    elif folder.name.startswith("slurm-") and int(os.environ.get("SLURM_RESTART_COUNT") or 0) > 0 \
+            and RunFolder(folder).holds_run():
+        return None
+    return ".hydra"
+
+
+OmegaConf.register_new_resolver("train_run_dir", train_run_dir, replace=True)
+OmegaConf.register_new_resolver("train_output_subdir", train_output_subdir, replace=True)
+
+
+__all__ = ["resume_config", "resumed_settings", "slurm_run_folder", "requeued_run", "train_run_dir",
+           "train_output_subdir", "RESUMABLE_KEYS"]

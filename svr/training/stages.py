@@ -1,34 +1,17 @@
-"""The three-stage training schedule of paper section 6, driven by a composed hydra config, and its
-entry point: ``python train.py`` / ``sdfdiff-train`` (``main``: hydra composes configs/train.yaml
-with the overrides; ``run`` trains in hydra's run folder, ``outputs/train/<time>`` by default, one
-folder per job with ``-m``). ``train`` is the body (also of ``python -m svr.demo``): it reads the
-config and instantiates everything else (``_target_``) into plain objects. Resuming a run:
-``svr.training.resume``.
-
-Run folder layout (``run_dir``)::
-
-    config.yaml                    the resolved config of the run
-    <stage>/checkpoints/best.ckpt  best validation IoU (fast direct variant) of that stage
-    <stage>/checkpoints/last.ckpt  rewritten every few steps: what a killed run resumes from
-    <stage>/checkpoints/final.ckpt the weights at the end of the stage
-    <stage>/tensorboard/, <stage>/csv/metrics.csv, <stage>/images/step_*.png
-
-Several processes (``trainer=ddp``): every process runs ``train`` with the same ``run_dir``; only
-global rank 0 writes files (config.yaml here, the rest through Lightning's rank-zero loggers,
-checkpoints and callbacks).
-
-``ckpt_path``: a checkpoint of a stage that is in the schedule resumes that stage (weights,
-optimiser, step counters, callbacks) and runs the rest of the schedule after it; a checkpoint of
-another stage (e.g. a coarse one with ``stage=refine``) only initialises the network's weights.
-"""
+"""The three-stage training schedule of paper section 6 (``train``): coarse (encoder + decoder),
+refine (the refiner, the rest frozen), joint (all three), each a Lightning ``fit`` with its own
+optimiser, step budget and checkpoints in the run folder (``svr.training.run_folder``), each later
+stage starting from the previous one's best (or final) weights. It takes the typed
+``TrainSettings`` and instantiates the components (data module, network, trainer, callbacks,
+loggers) when it needs them. A ``ckpt_path`` of a scheduled stage resumes that stage (weights,
+optimiser, step counters, callbacks) and runs the rest of the schedule; one of another stage only
+initialises the weights. With several processes (``trainer=ddp``) every process runs ``train`` in
+the same folder; only global rank 0 writes files."""
 from __future__ import annotations
 
-import contextlib
 import csv
 import logging
-import signal
 import sys
-import threading
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,7 +19,6 @@ from typing import Any, Optional
 
 import pytorch_lightning as pl
 from hydra.utils import instantiate
-from omegaconf import DictConfig, OmegaConf
 from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.utilities.exceptions import SIGTERMException
@@ -45,19 +27,16 @@ import renderer
 from sdfcommon.tooling.host_memory import keep_freed_memory
 from sdfcommon.tooling.outputs import remove_stale_temporaries, write_csv, write_text
 
-from svr.training.callbacks import AtomicCheckpointIO
-from svr.inference.checkpoints import CHECKPOINT_KEY, STAGES, check_stage, load_checkpoint, load_network_weights
 from svr.distributed import launch_rank_is_zero
-from svr.losses import LossWeights
+from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint, load_network_weights
 from svr.models.module import SVRLightningModule
 from svr.models.network import SVRNet
-from svr.training.resume import latest_checkpoint, resume_arguments, resumed_config, run_folder_of, slurm_arguments
+from svr.training.callbacks import AtomicCheckpointIO
+from svr.training.run_folder import RunFolder
+from svr.training.settings import LossSettings, TrainSettings, as_plain_dict
+from svr.training.stopping import SaveOnStop, StopRequest, TrainingStopped
 
 log = logging.getLogger(__name__)
-
-SHADING_MODES = ("auto", True, False)
-INIT_FROM = ("best", "final")
-
 
 @dataclass(frozen=True)
 class StageResult:
@@ -92,64 +71,6 @@ class TrainResult:
         return res.final
 
 
-class TrainingStopped(SystemExit):
-    """Training stopped by a signal (SIGTERM: ``kill``, a scheduler's time limit, a container stop)
-    after saving a resumable checkpoint. Its exit status is 128 + the signal number (143 for
-    SIGTERM), as a shell reports a process killed by that signal, so ``train && evaluate`` chains
-    and job schedulers see a failure."""
-
-    def __init__(self, message: str, signum: int = int(signal.SIGTERM), checkpoint: Optional[Path] = None):
-        super().__init__(128 + int(signum))
-        self.message = message
-        self.checkpoint = checkpoint
-
-
-class SaveOnStop(pl.Callback):
-    """Saves a resumable checkpoint (``path``, the stage's ``last.ckpt``) when a SIGTERM arrives,
-    and then lets Lightning stop.
-
-    The signal is only noted when it arrives; the checkpoint is written at the end of the training
-    step that is running (or the next one, when the signal came during validation or before the
-    first step), at ``on_train_batch_end``, where Lightning's periodic checkpoints are written too:
-    the state its resume logic restores exactly. Only then is Lightning told (its own SIGTERM
-    handler), so it stops after that step. Had Lightning heard the signal itself, it would stop in
-    the middle of a validation (before the step's learning-rate update: a resumed run would then
-    be one scheduler step behind) or after an epoch's last step (a checkpoint that resumes one
-    epoch too far). A signal after the stage's last step is kept in ``pending`` for ``train``.
-    The training data loader records its place in the epoch (``ResumableLoader``).
-    """
-
-    def __init__(self, path: Path):
-        self.path = Path(path)
-        self.saved_step: Optional[int] = None
-        self.pending = False
-        self._lightning_handler: Any = None
-
-    def on_train_start(self, trainer: pl.Trainer, pl_module: pl.LightningModule) -> None:
-        # Lightning installed its handler when fit began; hear the signal first (main thread only).
-        if threading.current_thread() is threading.main_thread():
-            self._lightning_handler = signal.getsignal(signal.SIGTERM)
-            signal.signal(signal.SIGTERM, self._note)
-
-    def _note(self, signum: int, frame: Any) -> None:
-        self.pending = True
-
-    def _save(self, trainer: pl.Trainer) -> None:
-        if self.saved_step is None:
-            trainer.save_checkpoint(self.path, weights_only=False)
-            self.saved_step = int(trainer.global_step)
-
-    def on_train_batch_end(self, trainer: pl.Trainer, *args: Any) -> None:
-        if self.pending or trainer.received_sigterm:
-            self._save(trainer)
-            if callable(self._lightning_handler) and not trainer.received_sigterm:
-                self._lightning_handler(signal.SIGTERM, None)  # Lightning stops after this step
-
-    def on_exception(self, trainer: pl.Trainer, pl_module: pl.LightningModule, exception: BaseException) -> None:
-        if isinstance(exception, SIGTERMException):  # Lightning heard it first (e.g. broadcast by DDP)
-            self._save(trainer)
-
-
 class _DropAdvertisements(logging.Filter):
     def filter(self, record: logging.LogRecord) -> bool:
         return not str(record.msg).startswith("\U0001f4a1 Tip:")  # "try installing <a cloud logger>"
@@ -171,55 +92,40 @@ def quiet_known_noise() -> None:
 # Building blocks from the config
 
 
-def build_scene(loss_cfg: DictConfig, weights: LossWeights, shading_model) -> renderer.Scene:
+def build_scene(loss: LossSettings, shading_model) -> renderer.Scene:
     """The renderer.Scene of the image loss: silhouettes, plus shading when the dataset's shading
     model is known and ``loss.shading`` allows it ("auto": when known and weighted)."""
-    mode = loss_cfg.get("shading", "auto")
-    if mode not in SHADING_MODES:
-        raise ValueError(f"loss.shading must be one of {SHADING_MODES}, got {mode!r}")
-    sigma = float(loss_cfg.get("silhouette_sigma", 0.3))
-    if mode is True and shading_model is None:
+    if loss.shading is True and shading_model is None:
         raise ValueError("loss.shading=true needs a dataset whose shading model is known (the procedural "
                          "data); this data module has none: use loss.shading=auto or false")
-    use = shading_model is not None and weights.shading > 0 and mode is not False
+    use = shading_model is not None and loss.weights.shading > 0 and loss.shading is not False
     if use:
-        return shading_model.scene(effects=("silhouette", "shading"), silhouette_sigma=sigma)
-    return renderer.Scene(effects=("silhouette",), silhouette_sigma=sigma)
+        return shading_model.scene(effects=("silhouette", "shading"), silhouette_sigma=loss.silhouette_sigma)
+    return renderer.Scene(effects=("silhouette",), silhouette_sigma=loss.silhouette_sigma)
 
 
-def stage_loss_config(cfg: DictConfig, stage: str) -> DictConfig:
-    """The loss config of one stage: ``loss`` with the stage's ``stage.<name>.loss`` entries on top
-    (e.g. a wider soft silhouette early on)."""
-    extra = cfg.stage[stage].get("loss")
-    return OmegaConf.merge(cfg.loss, extra) if extra else cfg.loss
-
-
-def build_module(cfg: DictConfig, net: SVRNet, stage: str, datamodule) -> SVRLightningModule:
-    """The LightningModule of one stage, from the loss and stage config groups."""
-    loss_cfg = stage_loss_config(cfg, stage)
-    weights = instantiate(loss_cfg.weights)
-    if not isinstance(weights, LossWeights):
-        raise TypeError(f"loss.weights must instantiate a svr.losses.LossWeights, got {type(weights).__name__}")
-    trace = instantiate(loss_cfg.trace) if loss_cfg.get("trace") is not None else renderer.TraceSettings()
-    stage_cfg = cfg.stage[stage]
-    optimizer = instantiate(stage_cfg.optimizer) if stage_cfg.get("optimizer") is not None else None
-    scheduler = instantiate(stage_cfg.scheduler) if stage_cfg.get("scheduler") is not None else None
+def build_module(settings: TrainSettings, net: SVRNet, stage: str, datamodule) -> SVRLightningModule:
+    """The LightningModule of one stage, from the loss and stage settings."""
+    loss = settings.stage_loss(stage)
+    stage_settings = settings.stage.of(stage)
+    optimizer = instantiate(stage_settings.optimizer)
+    scheduler = instantiate(stage_settings.scheduler) if stage_settings.scheduler is not None else None
     return SVRLightningModule(
         net=net,
         stage=stage,
-        loss_weights=weights,
-        scene=build_scene(loss_cfg, weights, getattr(datamodule, "shading", None)),
-        render_size=int(loss_cfg.get("render_size", 64)),
-        trace_settings=trace,
-        backend=str(loss_cfg.get("backend", "auto")),
+        loss_weights=loss.weights,
+        scene=build_scene(loss, getattr(datamodule, "shading", None)),
+        render_size=loss.render_size,
+        trace_settings=loss.trace,
+        backend=loss.backend,
         optimizer=optimizer,
         scheduler=scheduler,
         categories=getattr(datamodule, "categories", None),
-        model_config=OmegaConf.to_container(cfg.model, resolve=True),
+        model_config=settings.model,
     )
 
 
-def _instantiate_group(group: Optional[DictConfig], **extra) -> list:
+def _instantiate_group(group: Optional[dict], **extra) -> list:
     """Instantiates every non-null ``_target_`` entry of a config group (callbacks, loggers)."""
     out = []
     if group is None:
@@ -227,7 +133,7 @@ def _instantiate_group(group: Optional[DictConfig], **extra) -> list:
     for name, node in group.items():
         if node is None:
             continue
-        if not isinstance(node, DictConfig) or "_target_" not in node:
+        if not isinstance(node, dict) or "_target_" not in node:
             raise ValueError(f"{name}: expected a config with a _target_, got {node!r}")
         out.append(instantiate(node, **extra))
     return out
@@ -287,42 +193,34 @@ def _adopt_metrics_file(logger: CSVLogger) -> None:
         writer.metrics_keys = list(columns)
 
 
-def stage_max_steps(cfg: DictConfig, stage: str) -> int:
-    """``stage.<stage>.max_steps``, checked: a whole number of steps >= 1 (Lightning would take -1
-    as "no limit")."""
-    value = cfg.stage[stage].get("max_steps")
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"stage.{stage}.max_steps must be an integer >= 1, got {value!r}")
-    return value
-
-
-def build_trainer(cfg: DictConfig, stage: str, stage_dir: Path, resume_step: Optional[int] = None) -> pl.Trainer:
-    """A Trainer for one stage: its step budget, callbacks (checkpoints into ``stage_dir``; a
-    checkpoint at a SIGTERM), loggers (into ``stage_dir``; resuming from step ``resume_step``, the
-    CSV log goes on in the same file) and atomic checkpoint files."""
-    stage_cfg = cfg.stage[stage]
-    max_steps = stage_max_steps(cfg, stage)
-    callbacks = _instantiate_group(cfg.get("callbacks"))
+def build_trainer(settings: TrainSettings, stage: str, run: RunFolder, stop: StopRequest,
+                  resume_step: Optional[int] = None) -> pl.Trainer:
+    """A Trainer for one stage: its step budget, callbacks (checkpoints into the stage's folder; a
+    checkpoint at a SIGTERM), loggers (into the stage's folder; resuming from step ``resume_step``,
+    the CSV log goes on in the same file) and atomic checkpoint files."""
+    stage_settings = settings.stage.of(stage)
+    stage_dir = run.stage_dir(stage)
+    callbacks = _instantiate_group(settings.callbacks)
     for cb in callbacks:
         if isinstance(cb, ModelCheckpoint) and cb.dirpath is None:
-            cb.dirpath = str(stage_dir / "checkpoints")
-    callbacks.append(SaveOnStop(stage_dir / "checkpoints" / "last.ckpt"))
-    loggers = _instantiate_group(cfg.get("logger"), save_dir=str(stage_dir))
+            cb.dirpath = str(run.checkpoints(stage))
+    callbacks.append(SaveOnStop(run.last(stage), stop))
+    loggers = _instantiate_group(settings.logger, save_dir=str(stage_dir))
     for lg in loggers:
         if isinstance(lg, CSVLogger) and launch_rank_is_zero():
             continue_metrics(Path(lg.log_dir), resume_step)
             if resume_step is not None:
                 _adopt_metrics_file(lg)
     kwargs: dict[str, Any] = dict(
-        max_steps=max_steps,
+        max_steps=stage_settings.max_steps,
         callbacks=callbacks,
         logger=loggers if loggers else False,
         default_root_dir=str(stage_dir),
         plugins=[AtomicCheckpointIO()],
     )
-    if stage_cfg.get("max_time") is not None:
-        kwargs["max_time"] = stage_cfg.max_time
-    return instantiate(cfg.trainer, **kwargs)
+    if stage_settings.max_time is not None:
+        kwargs["max_time"] = stage_settings.max_time
+    return instantiate(settings.trainer, **kwargs)
 
 
 def _checkpoint_callbacks(trainer: pl.Trainer) -> tuple[Optional[Path], Optional[Path], Optional[float]]:
@@ -353,36 +251,27 @@ def plan_schedule(schedule: list[str], ckpt_stage: Optional[str]) -> tuple[int, 
     return 0, False
 
 
-def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
-    """Runs the stages of ``cfg.stage.schedule`` in order (see the module docstring).
+def train(settings: TrainSettings, run_dir: str | Path) -> TrainResult:
+    """Runs the stages of ``settings.stage.schedule`` in order (see the module docstring) in
+    ``run_dir``, whose ``config.yaml`` the command has written.
 
     Resuming (``ckpt_path`` of a scheduled stage) into the checkpoint's own run folder goes on with
     that run: its best-checkpoint tracking, its metrics file, its place in the training data. On a
     SIGTERM the stage saves ``last.ckpt`` and ``TrainingStopped`` is raised.
 
     Args:
-        cfg: the composed train config (configs/train.yaml).
-        run_dir: the run's output folder (hydra's run dir for train.py).
+        settings: the training settings (``svr.training.settings.TrainSettings``).
+        run_dir: the run's output folder.
     Returns:
         TrainResult with each stage's checkpoints.
     Raises:
         TrainingStopped: a SIGTERM stopped a stage (its ``last.ckpt`` holds the step reached).
     """
-    run_dir = Path(run_dir)
-    schedule = [check_stage(str(s)) for s in cfg.stage.schedule]
-    if not schedule:
-        raise ValueError(f"stage.schedule must name at least one of {STAGES}")
-    if len(set(schedule)) != len(schedule):
-        raise ValueError(f"stage.schedule must not repeat a stage, got {schedule}")
-    for stage in schedule:
-        stage_max_steps(cfg, stage)
-    init_from = cfg.stage.get("init_from", "best")
-    if init_from not in INIT_FROM:
-        raise ValueError(f"stage.init_from must be one of {INIT_FROM}, got {init_from!r}")
-
-    ckpt_path = cfg.get("ckpt_path")
+    run = RunFolder(Path(run_dir))
+    schedule = list(settings.stage.schedule)
+    ckpt_path = settings.ckpt_path
     if ckpt_path is not None and Path(ckpt_path).expanduser().is_dir():
-        found = latest_checkpoint(Path(ckpt_path).expanduser(), schedule)
+        found = RunFolder(Path(ckpt_path).expanduser()).latest_checkpoint(schedule)
         if found is None:
             raise FileNotFoundError(f"ckpt_path={ckpt_path}: the folder holds no <stage>/checkpoints/last.ckpt or "
                                     f"final.ckpt of the stages {schedule}: nothing to resume")
@@ -394,22 +283,16 @@ def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
         start, resume = plan_schedule(schedule, ckpt[CHECKPOINT_KEY]["stage"])
         resume_step = int(ckpt.get("global_step", 0)) if resume else None
 
-    run_dir.mkdir(parents=True, exist_ok=True)
+    run.root.mkdir(parents=True, exist_ok=True)
     quiet_known_noise()
     keep_freed_memory()  # a step's 64^3 grids reuse pages instead of faulting them in again
     if launch_rank_is_zero():  # the other DDP processes run this too, in the same folder
-        for stale in remove_stale_temporaries(run_dir):
+        for stale in remove_stale_temporaries(run.root):
             log.info("removed %s, left by a run killed while writing it", stale)
-        config = cfg
-        if resume and run_folder_of(ckpt_path) == run_dir.resolve():
-            # The run's own config.yaml records what it started from, not the checkpoint it resumes.
-            config = cfg.copy()
-            config.ckpt_path = OmegaConf.load(run_dir / "config.yaml").get("ckpt_path")
-        write_text(run_dir / "config.yaml", OmegaConf.to_yaml(config, resolve=True))
 
-    pl.seed_everything(int(cfg.seed), workers=True)
-    datamodule = instantiate(cfg.data)
-    net = instantiate(cfg.model)
+    pl.seed_everything(int(settings.seed), workers=True)
+    datamodule = instantiate(settings.data)
+    net = instantiate(settings.model)
     if not isinstance(net, SVRNet):
         raise TypeError(f"model must instantiate a svr.models.SVRNet, got {type(net).__name__}")
     if ckpt is not None:
@@ -420,53 +303,26 @@ def train(cfg: DictConfig, run_dir: str | Path) -> TrainResult:
             log.info("resuming stage %s at step %d from %s", schedule[start], resume_step, ckpt_path)
         ckpt = None
 
-    with _stop_outside_fit(run_dir):
-        return _run_schedule(cfg, run_dir, schedule, start, resume, resume_step, ckpt_path, net, datamodule, init_from)
+    with StopRequest(run.root).installed() as stop:
+        return _run_schedule(settings, run, stop, start, resume, resume_step, ckpt_path, net, datamodule)
 
 
-_IN_FIT = False  # Lightning's SIGTERM handling is active
-
-
-@contextlib.contextmanager
-def _stop_outside_fit(run_dir: Path):
-    """A SIGTERM outside a stage's ``fit`` (data generation, between stages) raises
-    ``TrainingStopped`` instead of killing the process silently; inside it Lightning handles the
-    signal (``SaveOnStop``). Main thread only (where signal handlers can be set)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def stop(signum, frame):
-        if not _IN_FIT:
-            message = (f"training stopped by signal {signum} outside a training step; resume from the latest "
-                       f"checkpoint with: python train.py ckpt_path={run_dir}")
-            if launch_rank_is_zero():
-                print(message, file=sys.stderr, flush=True)
-            raise TrainingStopped(message, signum)
-
-    previous = signal.signal(signal.SIGTERM, stop)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-def _run_schedule(cfg: DictConfig, run_dir: Path, schedule: list[str], start: int, resume: bool,
-                  resume_step: Optional[int], ckpt_path, net: SVRNet, datamodule, init_from: str) -> TrainResult:
-    global _IN_FIT
+def _run_schedule(settings: TrainSettings, run: RunFolder, stop: StopRequest, start: int, resume: bool,
+                  resume_step: Optional[int], ckpt_path, net: SVRNet, datamodule) -> TrainResult:
+    schedule = list(settings.stage.schedule)
+    hyperparameters = as_plain_dict(settings)
     results: list[StageResult] = []
     for i, stage in enumerate(schedule[start:], start=start):
-        pl.seed_everything(int(cfg.seed) + i, workers=True)
-        stage_dir = run_dir / stage
+        pl.seed_everything(int(settings.seed) + i, workers=True)
+        stage_dir = run.stage_dir(stage)
         resuming = resume and i == start
-        module = build_module(cfg, net, stage, datamodule)
-        trainer = build_trainer(cfg, stage, stage_dir, resume_step if resuming else None)
+        module = build_module(settings, net, stage, datamodule)
+        trainer = build_trainer(settings, stage, run, stop, resume_step if resuming else None)
         for lg in trainer.loggers:
-            lg.log_hyperparams(OmegaConf.to_container(cfg, resolve=True))
-        log.info("stage %s: %d steps -> %s", stage, int(cfg.stage[stage].max_steps), stage_dir)
+            lg.log_hyperparams(hyperparameters)
+        log.info("stage %s: %d steps -> %s", stage, settings.stage.of(stage).max_steps, stage_dir)
         try:
-            _IN_FIT = True
-            with warnings.catch_warnings():
+            with stop.fitting(), warnings.catch_warnings():
                 if resuming:  # the run's own folder: of course it holds checkpoints and logs
                     warnings.filterwarnings("ignore", message=r"(Checkpoint|Experiment logs) directory .* exists and "
                                                               r"is not empty")
@@ -474,32 +330,29 @@ def _run_schedule(cfg: DictConfig, run_dir: Path, schedule: list[str], start: in
                 trainer.fit(module, datamodule=datamodule, ckpt_path=str(ckpt_path) if resuming else None,
                             weights_only=True)
         except SIGTERMException:
-            raise _stopped(trainer, stage, run_dir) from None
-        finally:
-            _IN_FIT = False
-        final = stage_dir / "checkpoints" / "final.ckpt"
+            raise _stopped(trainer, stage, run) from None
+        final = run.final(stage)
         trainer.save_checkpoint(final, weights_only=False)  # a full, resumable checkpoint
-        saver = next(cb for cb in trainer.callbacks if isinstance(cb, SaveOnStop))
-        if saver.pending:  # the signal came with or after the stage's last step: stop before the next stage
-            raise _stopped(trainer, stage, run_dir, final)
+        if stop.pending:  # the signal came with or after the stage's last step: stop before the next stage
+            raise _stopped(trainer, stage, run, final)
         best, last, score = _checkpoint_callbacks(trainer)
         results.append(StageResult(stage, stage_dir, best, last, final, score))
         log.info("stage %s done: best val IoU %s (%s), final %s", stage, score, best, final)
         if i + 1 < len(schedule):
-            handoff = best if (init_from == "best" and best is not None) else final
+            handoff = best if (settings.stage.init_from == "best" and best is not None) else final
             load_network_weights(net, load_checkpoint(handoff), handoff)
             log.info("next stage starts from %s", handoff)
-    return TrainResult(run_dir, tuple(results))
+    return TrainResult(run.root, tuple(results))
 
 
-def _stopped(trainer: pl.Trainer, stage: str, run_dir: Path, checkpoint: Optional[Path] = None) -> TrainingStopped:
+def _stopped(trainer: pl.Trainer, stage: str, run: RunFolder, checkpoint: Optional[Path] = None) -> TrainingStopped:
     saver = next((cb for cb in trainer.callbacks if isinstance(cb, SaveOnStop)), None)
     if checkpoint is None and saver is not None and saver.saved_step is not None:
         checkpoint = saver.path
     if checkpoint is None:
         return TrainingStopped(f"training stopped by SIGTERM in stage {stage}; no checkpoint was saved at the signal")
     message = (f"training stopped by SIGTERM in stage {stage} at step {int(trainer.global_step)}; saved "
-               f"{checkpoint}. Resume with: python train.py ckpt_path={run_dir}")
+               f"{checkpoint}. Resume with: python train.py ckpt_path={run.root}")
     if launch_rank_is_zero():
         print(message, file=sys.stderr, flush=True)
     return TrainingStopped(message, checkpoint=checkpoint)

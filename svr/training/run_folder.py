@@ -1,0 +1,101 @@
+"""The layout of a training run's folder, written down once: ``config.yaml`` (the resolved config
+the run started with) and, per stage, ``<stage>/checkpoints/{best,last,final}.ckpt`` (best
+validation IoU; rewritten every few steps, what a killed run resumes from; the weights at the end
+of the stage), Lightning's SLURM checkpoints ``<stage>/hpc_ckpt_<n>.ckpt`` and the logs
+(``<stage>/tensorboard/``, ``<stage>/csv/metrics.csv``, ``<stage>/images/``). Everything that
+reads or writes a run folder goes through ``RunFolder``."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Sequence, Union
+
+from svr.inference.checkpoints import STAGES
+
+CONFIG_FILE = "config.yaml"
+CHECKPOINTS = "checkpoints"
+BEST, LAST, FINAL = "best.ckpt", "last.ckpt", "final.ckpt"
+SLURM_CHECKPOINT_PREFIX = "hpc_ckpt_"
+
+
+@dataclass(frozen=True)
+class RunFolder:
+    """A training run's folder (``root``) and the paths inside it."""
+
+    root: Path
+
+    @classmethod
+    def at(cls, path: Union[str, Path]) -> "RunFolder":
+        return cls(Path(path))
+
+    @property
+    def config(self) -> Path:
+        """The run's resolved config (written when the run starts)."""
+        return self.root / CONFIG_FILE
+
+    def holds_run(self) -> bool:
+        """Whether a training run was started here (its ``config.yaml`` exists)."""
+        return self.config.is_file()
+
+    def stage_dir(self, stage: str) -> Path:
+        """Where one stage writes its checkpoints and logs."""
+        return self.root / stage
+
+    def checkpoints(self, stage: str) -> Path:
+        """The folder of a stage's checkpoints."""
+        return self.stage_dir(stage) / CHECKPOINTS
+
+    def best(self, stage: str) -> Path:
+        return self.checkpoints(stage) / BEST
+
+    def last(self, stage: str) -> Path:
+        return self.checkpoints(stage) / LAST
+
+    def final(self, stage: str) -> Path:
+        return self.checkpoints(stage) / FINAL
+
+    def finished(self, stage: str) -> bool:
+        """Whether the stage ran to its end (its ``final.ckpt`` exists)."""
+        return self.final(stage).is_file()
+
+    def best_or_final(self, stage: str) -> Path:
+        """A finished stage's best checkpoint (by validation IoU), else its final one."""
+        for path in (self.best(stage), self.final(stage)):
+            if path.is_file():
+                return path
+        raise FileNotFoundError(f"no {BEST} or {FINAL} in {self.checkpoints(stage)}: has the {stage} stage run?")
+
+    def latest_checkpoint(self, schedule: Sequence[str]) -> Optional[Path]:
+        """What a stopped run resumes from: the newest of ``last.ckpt``, ``final.ckpt`` and
+        Lightning's SLURM checkpoints of the latest scheduled stage that wrote one (None: no stage
+        has)."""
+        for stage in reversed(list(schedule)):
+            found = [p for p in (self.final(stage), self.last(stage)) if p.is_file()]
+            found += [f for f in self.stage_dir(stage).glob(f"{SLURM_CHECKPOINT_PREFIX}*.ckpt") if f.is_file()]
+            if found:
+                return max(found, key=lambda f: f.stat().st_mtime_ns)
+        return None
+
+
+def run_folder_of(ckpt_path: Union[str, Path]) -> Optional[RunFolder]:
+    """The training run a checkpoint belongs to: ``RUN`` for ``RUN/<stage>/checkpoints/<name>.ckpt``
+    (or ``RUN/<stage>/hpc_ckpt_<n>.ckpt``) when ``RUN`` holds a run; None otherwise."""
+    p = Path(ckpt_path).expanduser().resolve()
+    if p.parent.name == CHECKPOINTS and p.parent.parent.name in STAGES:
+        run = RunFolder(p.parent.parent.parent)
+    elif p.name.startswith(SLURM_CHECKPOINT_PREFIX) and p.parent.name in STAGES:
+        run = RunFolder(p.parent.parent)
+    else:
+        return None
+    return run if run.holds_run() else None
+
+
+def run_named_by(ckpt_path: Union[str, Path]) -> Optional[RunFolder]:
+    """The run a ``ckpt_path`` setting names: the folder itself when it holds a run, else the run
+    its checkpoint belongs to (``run_folder_of``); None for neither."""
+    path = Path(ckpt_path).expanduser()
+    folder = RunFolder(path.resolve())
+    return folder if folder.holds_run() else run_folder_of(path)
+
+
+__all__ = ["RunFolder", "run_folder_of", "run_named_by", "CONFIG_FILE", "BEST", "LAST", "FINAL"]
