@@ -7,6 +7,7 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Optional
 
 import numpy as np
 import pytest
@@ -22,18 +23,32 @@ from .entry_points import expect_usage_error, files_under, run_entry
 ROOT = Path(__file__).resolve().parents[1]
 
 TOY_YAML = """\
+_target_: tests.test_cli.ToySettings
 out: ???
 mode: ok
+nothing_here_but_missing: null
 hydra:
   run:
     dir: ${out}
   job:
     name: toy
     chdir: false
+  help:
+    app_name: toy-cmd
+  callbacks:
+    run_folder_guard:
+      _target_: sdfcommon.tooling.commands.RunFolderGuard
 """
 
 
-def toy_task(cfg):
+@dataclass(frozen=True)
+class ToySettings:
+    out: str
+    mode: str
+    nothing_here_but_missing: Optional[str] = None
+
+
+def toy_task(cfg: ToySettings):
     """Fails as ``cfg.mode`` says, after writing what a run writes (settings, a result)."""
     out = Path(cfg.out)
     if cfg.mode == "results":
@@ -48,8 +63,6 @@ def toy_task(cfg):
         raise RuntimeError("a bug")
     if cfg.mode == "exit":
         raise SystemExit(143)
-    if cfg.mode == "missing":
-        return cfg.nothing_here_but_missing
     (out / "result.txt").write_text("done")
     return 1.0
 
@@ -58,8 +71,8 @@ def toy_task(cfg):
 def toy(tmp_path):
     conf = tmp_path / "conf"
     conf.mkdir()
-    (conf / "toy.yaml").write_text(TOY_YAML + "nothing_here_but_missing: ???\n")
-    return hydra_entry("toy-cmd", "toy", toy_task, conf)
+    (conf / "toy.yaml").write_text(TOY_YAML)
+    return hydra_entry("toy", toy_task, str(conf))
 
 
 def test_sdfcommon_imports_neither_svr_nor_mvr():
@@ -75,8 +88,14 @@ def test_a_users_mistake_is_one_line_with_status_2_and_leaves_nothing(toy, tmp_p
     line = expect_usage_error(toy, [f"out={run}", "mode=user"], monkeypatch, capsys, "toy-cmd")
     assert line == "toy-cmd: error: the thing named in the message is wrong"
     assert not run.exists()  # .hydra, toy.log, settings.json and the folder itself are gone
-    line = expect_usage_error(toy, [f"out={run}", "mode=missing"], monkeypatch, capsys, "toy-cmd")
+    # A required setting left unset (???) is refused before anything is made.
+    line = expect_usage_error(toy, [f"out={run}", "nothing_here_but_missing=???"], monkeypatch, capsys, "toy-cmd")
     assert "nothing_here_but_missing" in line and not run.exists()
+    # So are an unknown key and a value of the wrong type.
+    line = expect_usage_error(toy, [f"out={run}", "+nonsense=1"], monkeypatch, capsys)
+    assert line == "toy-cmd: error: nonsense: unknown setting (ToySettings has: out, mode, nothing_here_but_missing)"
+    line = expect_usage_error(toy, [f"out={run}", "mode=[1,2]"], monkeypatch, capsys)
+    assert line == "toy-cmd: error: mode must be a string, got [1, 2]" and not run.exists()
     # Folders made to hold a new run folder go too (as outputs/infer/ would), not the ones before.
     expect_usage_error(toy, [f"out={tmp_path / 'outputs' / 'toy' / 'run'}", "mode=user"], monkeypatch, capsys)
     assert not (tmp_path / "outputs").exists() and tmp_path.is_dir()
@@ -118,9 +137,9 @@ def test_a_failed_run_that_wrote_results_keeps_them(toy, tmp_path, monkeypatch, 
 def test_an_entry_names_its_own_records(tmp_path, monkeypatch, capsys):
     conf = tmp_path / "conf"
     conf.mkdir()
-    (conf / "toy.yaml").write_text(TOY_YAML)
     for records, kept in ((("notes.txt",), False), ((), True)):
-        entry = hydra_entry("toy-cmd", "toy", toy_task, conf, records=records)
+        (conf / "toy.yaml").write_text(TOY_YAML + f"      records: {list(records)}\n")
+        entry = hydra_entry("toy", toy_task, str(conf))
         run = tmp_path / f"run{len(records)}"
         expect_usage_error(entry, [f"out={run}", "mode=notes"], monkeypatch, capsys)
         assert run.exists() == kept

@@ -29,6 +29,7 @@ from hydra.experimental.callback import Callback
 from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
+from PIL import Image
 
 from sdfcommon.tooling.checks import check_field_types, check_float, check_int
 from sdfcommon.tooling.outputs import atomic_write, make_writable_folder
@@ -59,16 +60,9 @@ def fail(message: str) -> None:
 
 
 def _user_error_types() -> tuple[type, ...]:
-    types: list[type] = [ValueError, TypeError, OSError, oc_errors.MissingMandatoryValue,
-                         oc_errors.ValidationError, oc_errors.ConfigKeyError, oc_errors.ConfigAttributeError,
-                         oc_errors.InterpolationResolutionError]
-    try:
-        from PIL import Image
-
-        types.append(Image.DecompressionBombError)
-    except ImportError:
-        pass
-    return tuple(types)
+    return (ValueError, TypeError, OSError, oc_errors.MissingMandatoryValue, oc_errors.ValidationError,
+            oc_errors.ConfigKeyError, oc_errors.ConfigAttributeError, oc_errors.InterpolationResolutionError,
+            Image.DecompressionBombError)
 
 
 def user_message(err: BaseException) -> Optional[str]:

@@ -82,7 +82,13 @@ def build_dataclass(cls: type, values: Mapping[str, Any], name: str = "") -> Any
     for f in fields.values():
         if f.name not in values and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
             raise ValueError(f"{_key(name, f.name)} must be set")
-    return cls(**values)
+    try:
+        return cls(**values)
+    except (TypeError, ValueError) as err:  # a __post_init__ check names its field: name its key
+        text = str(err)
+        if name and text.split(" ", 1)[0] in fields:
+            raise type(err)(f"{name}.{text}") from None
+        raise
 
 
 def build_settings(cfg: DictConfig | Mapping[str, Any]) -> Any:

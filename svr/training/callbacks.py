@@ -9,7 +9,7 @@ import pytorch_lightning as pl
 import torch
 from pytorch_lightning.plugins.io import TorchCheckpointIO
 
-from sdfcommon.tooling.outputs import write_torch
+from sdfcommon.tooling.outputs import write_png, write_torch
 from sdfcommon.tooling.pictures import labelled_grid
 
 
@@ -111,8 +111,6 @@ class ImageLogger(pl.Callback):
             experiment = getattr(logger, "experiment", None)
             if hasattr(experiment, "add_image"):
                 experiment.add_image("train/renders", picture, step, dataformats="HWC")
-        from PIL import Image
-
         folder = Path(self.folder) if self.folder else Path(trainer.default_root_dir) / "images"
         folder.mkdir(parents=True, exist_ok=True)
-        Image.fromarray((picture * 255).round().astype(np.uint8)).save(folder / f"step_{step:07d}.png")
+        write_png(folder / f"step_{step:07d}.png", picture)

@@ -47,6 +47,11 @@ def _leaves(node: Any, prefix: str = "") -> dict[str, Any]:
     return {prefix[:-1]: node}
 
 
+def _known(leaves: dict[str, Any], path: str) -> bool:
+    """Whether the config of these leaves sets ``path``, a part of it or a whole node above it."""
+    return any(k == path or path.startswith(k + ".") or k.startswith(path + ".") for k in leaves)
+
+
 def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[str]) -> tuple[DictConfig, list[str]]:
     """The config a resumed run goes on with: the run's saved ``config.yaml``, with the requested
     (freshly composed) config's values where they are allowed to change (``RESUMABLE_KEYS``).
@@ -83,8 +88,9 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
         old, new = saved_leaves.get(path, missing), requested_leaves.get(path, missing)
         if old == new or new is missing and not requested_here(path):
             continue
-        if old is missing and not requested_here(path):  # a setting the saved run did not know yet
-            OmegaConf.update(merged, path, new, merge=False)
+        if old is missing and not requested_here(path):
+            if not _known(saved_leaves, path):  # a setting the saved run did not know yet: its default
+                OmegaConf.update(merged, path, new, merge=False)
             continue
         if not requested_here(path):
             continue
@@ -102,25 +108,27 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
 
 def resumed_settings(settings: TrainSettings, run: RunFolder, overrides: Sequence[str]) -> tuple[TrainSettings, dict]:
     """The settings a training command goes on with in ``run`` (hydra's run folder), and the record
-    to write as its ``config.yaml``.
-
-    A fresh run: ``settings`` and their record. A run resumed in its own folder (``ckpt_path``
-    names it): its saved ``config.yaml`` with the changes the command line may make
-    (``resume_config``; each logged as a warning); the record keeps the ``ckpt_path`` the run
-    started from. Settings the saved run did not know yet take the requested values.
-    """
-    record = settings_record(settings)
+    to write as its ``config.yaml``: for a fresh run ``settings``; for a run resumed in its own
+    folder (``ckpt_path`` names it), ``continued_settings``."""
     named = run_named_by(settings.ckpt_path) if settings.ckpt_path is not None else None
     if named is None or named.root != run.root.resolve():
-        return settings, record
-    saved = OmegaConf.load(named.config)
-    merged, changes = resume_config(saved, OmegaConf.create(record), overrides)
+        return settings, settings_record(settings)
+    return continued_settings(settings, named, overrides)
+
+
+def continued_settings(settings: TrainSettings, run: RunFolder, overrides: Sequence[str]) -> tuple[TrainSettings, dict]:
+    """The settings a run already in ``run`` goes on with: its saved ``config.yaml`` with the
+    changes the command line may make (``resume_config``; each logged as a warning), and the record
+    to write back (keeping the ``ckpt_path`` the run started from). Settings the saved run did not
+    know yet take the requested values."""
+    saved = OmegaConf.load(run.config)
+    merged, changes = resume_config(saved, OmegaConf.create(settings_record(settings)), overrides)
     for change in changes:
-        log.warning("resuming %s with a changed setting: %s", named.root, change)
-    merged_record = OmegaConf.to_container(merged, resolve=True)
-    resumed = build_settings(merged_record)
-    merged_record["ckpt_path"] = saved.get("ckpt_path")
-    return resumed, merged_record
+        log.warning("resuming %s with a changed setting: %s", run.root, change)
+    record = OmegaConf.to_container(merged, resolve=True)
+    resumed = build_settings(record)
+    record["ckpt_path"] = saved.get("ckpt_path")
+    return resumed, record
 
 
 def _is_set(value: Any) -> bool:
@@ -180,5 +188,5 @@ OmegaConf.register_new_resolver("train_run_dir", train_run_dir, replace=True)
 OmegaConf.register_new_resolver("train_output_subdir", train_output_subdir, replace=True)
 
 
-__all__ = ["resume_config", "resumed_settings", "slurm_run_folder", "requeued_run", "train_run_dir",
+__all__ = ["resume_config", "resumed_settings", "continued_settings", "slurm_run_folder", "requeued_run", "train_run_dir",
            "train_output_subdir", "RESUMABLE_KEYS"]

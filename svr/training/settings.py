@@ -43,8 +43,8 @@ class LossSettings:
 
     def __post_init__(self) -> None:
         if not any(type(self.shading) is type(m) and self.shading == m for m in SHADING_MODES):
-            raise ValueError(f"loss.shading must be one of {', '.join(map(str, SHADING_MODES))}, got {self.shading!r}")
-        check_int(self.render_size, "loss.render_size", 1)
+            raise ValueError(f"shading must be one of {', '.join(map(str, SHADING_MODES))}, got {self.shading!r}")
+        check_int(self.render_size, "render_size", 1)
 
 
 @dataclass(frozen=True)
@@ -82,14 +82,14 @@ class ScheduleSettings:
 
     def __post_init__(self) -> None:
         if not self.schedule:
-            raise ValueError(f"stage.schedule must name at least one of {STAGES}")
+            raise ValueError(f"schedule must name at least one of {STAGES}")
         for stage in self.schedule:
             if stage not in STAGES:
-                raise ValueError(f"stage.schedule must hold stages of {STAGES}, got {stage!r}")
+                raise ValueError(f"schedule must hold stages of {STAGES}, got {stage!r}")
         if len(set(self.schedule)) != len(self.schedule):
-            raise ValueError(f"stage.schedule must not repeat a stage, got {self.schedule}")
+            raise ValueError(f"schedule must not repeat a stage, got {self.schedule}")
         if self.init_from not in INIT_FROM:
-            raise ValueError(f"stage.init_from must be one of {INIT_FROM}, got {self.init_from!r}")
+            raise ValueError(f"init_from must be one of {INIT_FROM}, got {self.init_from!r}")
 
     def of(self, stage: str) -> StageSettings:
         """The settings of one stage by name."""

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from sdfcommon.tooling.commands import compose
+from sdfcommon.tooling.settings import build_settings
 from svr.demo import main, resume_point, run, run_train_seconds
 
 from ..entry_points import expect_usage_error, run_entry
@@ -17,7 +18,7 @@ SCHEDULE = ("coarse", "refine", "joint")
 
 def demo(args: list[str]) -> dict:
     """The demo with these command-line overrides, in this process (``run`` on configs/demo.yaml)."""
-    return run(compose("demo", args), args)
+    return run(build_settings(compose("demo", args)), args)
 
 
 def tiny(cache: Path) -> list[str]:

@@ -312,6 +312,7 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
     from hydra.utils import instantiate
 
     from svr.inference.checkpoints import load_checkpoint, load_network_weights
+    from sdfcommon.tooling.settings import build_settings
     from svr.training.stages import build_module
 
     r0, r1 = ddp_run["ranks"]
@@ -333,7 +334,7 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
     net = instantiate(cfg.model)
     best = ddp_run["run"] / "coarse" / "checkpoints" / "best.ckpt"
     load_network_weights(net, load_checkpoint(best), best)
-    module = build_module(cfg, net, "coarse", dm)
+    module = build_module(build_settings(cfg), net, "coarse", dm)
     trainer = pl.Trainer(accelerator="cpu", devices=1, logger=False, enable_progress_bar=False,
                          enable_model_summary=False, enable_checkpointing=False)
     single = trainer.validate(module, datamodule=dm, verbose=False)[0]

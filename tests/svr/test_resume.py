@@ -18,10 +18,11 @@ import torch
 from omegaconf import OmegaConf
 
 from svr.inference.checkpoints import load_checkpoint
-from svr.training.resume import latest_checkpoint, resume_arguments, resume_config, run_folder_of, slurm_arguments
-from svr.training.stages import TrainingStopped, train
+from svr.training.resume import requeued_run, resume_config, slurm_run_folder, train_output_subdir, train_run_dir
+from svr.training.run_folder import RunFolder, run_folder_of
+from svr.training.stages import TrainingStopped
 
-from .test_train import compose_train, state, tiny_overrides
+from .test_train import compose_train, state, tiny_overrides, train
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -136,6 +137,18 @@ def test_resume_config_keeps_the_run_and_names_what_may_not_change(data_override
                       ["loss.weights.eikonal=0.5"])
 
 
+def test_resume_config_takes_the_defaults_of_settings_a_saved_run_lacks():
+    """A run saved before a setting existed goes on with that setting's default; a node the run
+    switched off (null) stays off however the defaults look."""
+    saved = OmegaConf.create({"seed": 0, "callbacks": {"progress_bar": None}})
+    requested = OmegaConf.create({"seed": 0, "callbacks": {"progress_bar": {"_target_": "Bar", "rate": 10}},
+                                  "paths": {"output_dir": "outputs"}})
+    merged, changes = resume_config(saved, requested, [])
+    assert OmegaConf.to_container(merged) == {"seed": 0, "callbacks": {"progress_bar": None},
+                                              "paths": {"output_dir": "outputs"}}
+    assert changes == []
+
+
 def test_run_folder_and_latest_checkpoint(tmp_path):
     run = tmp_path / "run"
     (run / "coarse" / "checkpoints").mkdir(parents=True)
@@ -143,45 +156,57 @@ def test_run_folder_and_latest_checkpoint(tmp_path):
     ckpt.write_bytes(b"x")
     assert run_folder_of(ckpt) is None  # no config.yaml: not a run folder
     (run / "config.yaml").write_text("seed: 0\n")
-    assert run_folder_of(ckpt) == run.resolve()
-    assert latest_checkpoint(run, ["coarse", "refine"]) == ckpt
+    assert run_folder_of(ckpt) == RunFolder(run.resolve())
+    assert RunFolder(run).latest_checkpoint(["coarse", "refine"]) == ckpt
     final = run / "coarse" / "checkpoints" / "final.ckpt"
     final.write_bytes(b"y")
     os.utime(ckpt, ns=(1, 1))
-    assert latest_checkpoint(run, ["coarse", "refine"]) == final
-    assert resume_arguments([f"ckpt_path={ckpt}"]) == [f"hydra.run.dir='{run.resolve()}'", "hydra.output_subdir=null"]
-    assert resume_arguments([f"ckpt_path={run}"])[0] == f"hydra.run.dir='{run.resolve()}'"
-    assert resume_arguments([f"ckpt_path={ckpt}", "hydra.run.dir=elsewhere"]) == []
-    assert resume_arguments(["-m", f"ckpt_path={ckpt}"]) == []
+    assert RunFolder(run).latest_checkpoint(["coarse", "refine"]) == final
+    # A resume runs in the run's own folder (a checkpoint's or the folder itself) with no new .hydra/.
+    assert train_run_dir(str(ckpt), "outputs", "outputs/train/new") == str(run.resolve())
+    assert train_run_dir(str(run), "outputs", "outputs/train/new") == str(run.resolve())
+    assert train_run_dir(None, "outputs", "outputs/train/new") == "outputs/train/new"
+    assert train_output_subdir(str(ckpt), str(run)) is None
+    assert train_output_subdir(str(ckpt), str(tmp_path / "elsewhere")) == ".hydra"  # hydra.run.dir given: a new folder
+    cfg = compose_train([f"ckpt_path={ckpt}"], hydra=True)
+    assert cfg.hydra.run.dir == str(run.resolve()) and cfg.hydra.output_subdir is None
+    cfg = compose_train([f"ckpt_path={ckpt}", f"hydra.run.dir={tmp_path / 'elsewhere'}"], hydra=True)
+    assert cfg.hydra.output_subdir == ".hydra"
 
 
 def test_slurm_batch_jobs_get_a_folder_their_requeue_resumes(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     env = {"SLURM_JOB_ID": "77", "SLURM_JOB_NAME": "train.sbatch"}
-    assert slurm_arguments(["seed=1"], env) == ["hydra.run.dir=outputs/train/slurm-77"]
-    assert slurm_arguments(["seed=1"], {**env, "SLURM_JOB_NAME": "interactive"}) == []  # salloc/srun --pty
-    assert slurm_arguments(["hydra.run.dir=x"], env) == []
-    assert slurm_arguments(["seed=1"], {}) == []
+    assert slurm_run_folder(env, "outputs") == RunFolder(Path("outputs/train/slurm-77"))
+    assert slurm_run_folder({**env, "SLURM_JOB_NAME": "interactive"}, "outputs") is None  # salloc/srun --pty
+    assert slurm_run_folder({}, "outputs") is None
     arr = {**env, "SLURM_ARRAY_JOB_ID": "70", "SLURM_ARRAY_TASK_ID": "3"}
-    assert slurm_arguments([], arr) == ["hydra.run.dir=outputs/train/slurm-70_3"]
+    assert slurm_run_folder(arr, "outputs") == RunFolder(Path("outputs/train/slurm-70_3"))
     requeued = {**env, "SLURM_RESTART_COUNT": "1"}
-    assert slurm_arguments([], requeued) == ["hydra.run.dir=outputs/train/slurm-77"]  # nothing to resume yet
+    assert requeued_run(requeued, "outputs") is None  # nothing to resume yet
+    for key, value in requeued.items():
+        monkeypatch.setenv(key, value)
+    assert train_run_dir(None, "outputs", "outputs/train/new") == "outputs/train/slurm-77"
+    assert train_output_subdir(None, "outputs/train/slurm-77") == ".hydra"
     run = tmp_path / "outputs" / "train" / "slurm-77"
     (run / "coarse").mkdir(parents=True)
     (run / "config.yaml").write_text("seed: 0\n")
-    assert slurm_arguments([], requeued) == ["hydra.run.dir=outputs/train/slurm-77",
-                                             "ckpt_path=outputs/train/slurm-77", "hydra.output_subdir=null"]
-    assert slurm_arguments([], env) == ["hydra.run.dir=outputs/train/slurm-77"]  # not requeued: no resume
+    assert requeued_run(requeued, "outputs") == RunFolder(Path("outputs/train/slurm-77"))
+    assert train_output_subdir(None, "outputs/train/slurm-77") is None  # the requeued job goes on in place
+    assert requeued_run(env, "outputs") is None  # not requeued: no resume
     hpc = run / "coarse" / "hpc_ckpt_1.ckpt"  # Lightning's SIGUSR1 checkpoint
     hpc.write_bytes(b"x")
-    assert latest_checkpoint(run, ["coarse", "refine"]) == hpc
-    assert run_folder_of(hpc) == run.resolve()
+    assert RunFolder(run).latest_checkpoint(["coarse", "refine"]) == hpc
+    assert run_folder_of(hpc) == RunFolder(run.resolve())
 
 
-@pytest.mark.parametrize("steps", ["-1", "0", "abc"])
-def test_step_budget_must_be_positive(tmp_path, data_overrides, steps):
+@pytest.mark.parametrize("steps, error, message", [
+    ("-1", ValueError, r"stage.coarse.max_steps must be an integer >= 1, got -1"),
+    ("0", ValueError, r"stage.coarse.max_steps must be an integer >= 1, got 0"),
+    ("abc", TypeError, r"stage.coarse.max_steps must be an integer, got 'abc'")])
+def test_step_budget_must_be_positive(tmp_path, data_overrides, steps, error, message):
     cfg = compose_train(tiny_overrides(data_overrides, 2, f"stage.coarse.max_steps={steps}"))
-    with pytest.raises(ValueError, match=r"stage.coarse.max_steps must be an integer >= 1"):
+    with pytest.raises(error, match=message):
         train(cfg, tmp_path / "run")
 
 
@@ -203,7 +228,7 @@ def _train_command(overrides: list[str]) -> list[str]:
 
 
 def test_command_line_sigterm_exits_nonzero_and_resumes_in_place(tmp_path, data_overrides):
-    """train.py killed with SIGTERM at random moments exits 143 each time; resuming with the README's
+    """train.py killed with SIGTERM at random moments exits 143 each time; resuming with docs/svr_training.md's
     command continues in the same folder, with its config, and ends where an uninterrupted run ends."""
     base = tiny_overrides(data_overrides, 30, "stage=coarse", "callbacks.image_logger=null")
     whole = tmp_path / "whole"

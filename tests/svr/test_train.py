@@ -15,11 +15,17 @@ import pytest
 import torch
 from hydra import compose, initialize_config_dir
 from hydra.utils import instantiate
+from omegaconf import OmegaConf
 
-from svr.training.callbacks import AtomicCheckpointIO
+from sdfcommon.tooling.outputs import write_text
+from sdfcommon.tooling.settings import build_settings, settings_record
 from svr.inference.checkpoints import load_checkpoint
 from svr.models.module import SVRLightningModule
-from svr.training.stages import build_module, build_trainer, train
+from svr.training import stages
+from svr.training.callbacks import AtomicCheckpointIO
+from svr.training.run_folder import RunFolder
+from svr.training.stages import build_module, build_trainer
+from svr.training.stopping import StopRequest
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIGS = str(REPO / "configs")
@@ -42,9 +48,18 @@ def tiny_overrides(data: list[str], steps: int = 2, *extra: str) -> list[str]:
             "callbacks.last_checkpoint.every_n_train_steps=1", "callbacks.image_logger.every_n_steps=2", *extra]
 
 
-def compose_train(overrides: list[str]):
+def compose_train(overrides: list[str], hydra: bool = False):
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        return compose("train", overrides=overrides)
+        return compose("train", overrides=overrides, return_hydra_config=hydra)
+
+
+def train(cfg, run_dir: Path) -> stages.TrainResult:
+    """What the training command does with a composed config in its run folder: the settings, the
+    run's config.yaml (the command writes it), then the schedule."""
+    settings = build_settings(cfg)
+    Path(run_dir).mkdir(parents=True, exist_ok=True)
+    write_text(RunFolder(Path(run_dir)).config, OmegaConf.to_yaml(settings_record(settings)))
+    return stages.train(settings, run_dir)
 
 
 def state(path: Path, prefix: str) -> dict[str, torch.Tensor]:
@@ -147,7 +162,7 @@ def test_overfits_one_batch(data_overrides):
     dm = instantiate(cfg.data)
     dm.prepare_data()
     batch = next(iter(dm.train_dataloader()))
-    module = build_module(cfg, instantiate(cfg.model), "coarse", dm)
+    module = build_module(build_settings(cfg), instantiate(cfg.model), "coarse", dm)
     opt = module.configure_optimizers()
     losses = []
     for _ in range(30):
@@ -180,18 +195,18 @@ def test_non_finite_steps_are_skipped(tmp_path, data_overrides, bad_gradient):
     cfg = compose_train(tiny_overrides(data_overrides, 3, "trainer.val_check_interval=100"))
     dm = instantiate(cfg.data)
     net = instantiate(cfg.model)
-    module = build_module(cfg, net, "coarse", dm)
+    module = build_module(build_settings(cfg), net, "coarse", dm)
     module.__class__ = NaNLoss
     module.bad_gradient = bad_gradient
     before = {k: v.clone() for k, v in net.state_dict().items() if "running" not in k and "num_batches" not in k}
-    trainer = build_trainer(cfg, "coarse", tmp_path)
+    trainer = build_trainer(build_settings(cfg), "coarse", RunFolder(tmp_path), StopRequest(tmp_path))
     with pytest.warns(RuntimeWarning, match="skipping the optimiser step"):
         trainer.fit(module, datamodule=dm)
     assert module.skipped_steps == 3
     after = net.state_dict()
     for k, v in before.items():
         assert torch.equal(v, after[k]), f"{k} changed on a skipped step"
-    with open(tmp_path / "csv" / "metrics.csv") as f:
+    with open(tmp_path / "coarse" / "csv" / "metrics.csv") as f:
         rows = [r for r in csv.DictReader(f) if r.get("train/skipped_steps")]
     assert rows and float(rows[-1]["train/skipped_steps"]) == 3
 
