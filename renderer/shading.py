@@ -16,7 +16,9 @@ from .scene import DirectionalLight, PointLight, Scene
 
 
 def shade_reference(grid: SDFGrid, rays: ShadingRays, scene: Scene) -> Shading:
-    """The passes ``scene.effects`` need, for R rays marched through ``grid``.
+    """The passes ``scene.effects`` need, for R rays marched through ``grid``, in plain autograd
+    (given a plain SDFGrid; renderer/stage2.py passes ``with_shared_gradient(grid)``, whose
+    samplings give the same values and gradients faster).
 
     Hit rays get the hit point (conservative or exact, ``scene.intersection``), then the depth, the
     normal and the shading the scene asks for; every ray that entered the grid's box gets the soft
@@ -26,7 +28,6 @@ def shade_reference(grid: SDFGrid, rays: ShadingRays, scene: Scene) -> Shading:
         Shading of the R rays (the grid's dtype and device), differentiable w.r.t. ``grid.values``.
     """
     total = rays.count
-    grid = grid._with_shared_gradient()  # every pass below samples it: one gradient buffer for all
     depth = normal = image = silhouette = None
     if scene.needs_hit_points():
         idx = rays.hit.nonzero().squeeze(1)

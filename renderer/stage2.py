@@ -12,6 +12,7 @@ from .backends import resolve_stage2
 from .cameras import Cameras
 from .fused import shade_fused
 from .grid import SDFGrid
+from .shared_gradient import with_shared_gradient
 from .records import MarchResult, RenderOutput, ShadingRays
 from .scene import Scene
 from .shading import shade_reference
@@ -56,7 +57,12 @@ def shade_trace(grid: SDFGrid, cameras: Cameras, trace: MarchResult, scene: Scen
         raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
     backend = resolve_stage2(stage2, trace.backend, scene, grid.device)
     rays = shading_rays(trace, cameras, grid.dtype, grid.device)
-    out = shade_reference(grid, rays, scene) if backend is None else shade_fused(backend, grid, rays, scene)
+    if backend is None:
+        # The plain-autograd specification, its samplings' gradients added into one buffer (the
+        # same values and gradients, faster on large grid batches: renderer/shared_gradient.py).
+        out = shade_reference(with_shared_gradient(grid), rays, scene)
+    else:
+        out = shade_fused(backend, grid, rays, scene)
     b, h, w = trace.hit.shape
     return RenderOutput(
         hit=trace.hit,

@@ -613,7 +613,7 @@ def test_cuda_kernel_compiles_to_ptx(dtype, monkeypatch):
     assert ".entry" in ptx or ".visible .entry" in ptx
 
 
-# ---------------------------------------------------------------------------- stage-2 speed-ups
+# ---------------------------------------------------------------------------- the normal stencil
 def _gradient_per_corner(grid: SDFGrid, points: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """The normal construction written plainly (one gather per corner and axis), to check the
     vectorised SDFGrid.sample_gradient against."""
@@ -665,55 +665,6 @@ def test_vectorised_normal_stencil_matches_the_per_corner_formula(res, dtype):
     # d/dp of the gradient is a sum of large terms of both signs: float32 rounding scales with them.
     scale = float(dp_plain.abs().max())
     torch.testing.assert_close(dp_fast, dp_plain, rtol=tol["rtol"], atol=tol["atol"] * max(1.0, scale / 10))
-
-
-def test_shared_gradient_buffer_gives_the_plain_gradients():
-    """A render's samplings share one gradient buffer (SDFGrid._with_shared_gradient): same
-    gradients as separate samplings, also with retain_graph and two backward passes, and values
-    that do not require grad take the plain path."""
-    values = random_smooth_values(2, 12, seed=3, dtype=torch.float64)
-    gen = torch.Generator().manual_seed(0)
-    pts = torch.rand(300, 3, generator=gen, dtype=torch.float64) * 2 - 1
-    b = torch.randint(0, 2, (300,), generator=gen)
-
-    def loss(grid):
-        return (grid.sample(pts, b).sin().sum() + grid.sample_gradient(pts[:100], b[:100]).pow(2).sum()
-                + grid.sample(pts[50:] * 0.5, b[50:]).sum())
-
-    v = values.clone().requires_grad_(True)
-    (plain,) = torch.autograd.grad(loss(SDFGrid(v)), v)
-    shared = SDFGrid(v)._with_shared_gradient()
-    assert getattr(shared, "_shared", None) is not None
-    total = loss(shared)
-    total.backward(retain_graph=True)
-    first = v.grad.clone()
-    total.backward()
-    torch.testing.assert_close(first, plain, rtol=1e-12, atol=1e-12)
-    torch.testing.assert_close(v.grad, 2 * plain, rtol=1e-12, atol=1e-12)
-    frozen = SDFGrid(values)
-    assert frozen._with_shared_gradient() is frozen
-    with torch.no_grad():
-        assert SDFGrid(v)._with_shared_gradient().values is v
-
-
-@pytest.mark.parametrize("dtype", DTYPES)
-def test_sampling_at_fixed_points_has_the_autograd_gradient(dtype):
-    """Samples at points without gradient use a one-pass backward for the values: it must agree
-    with autograd's walk through the interpolation (points with gradient take that path)."""
-    values = random_smooth_values(2, (6, 9, 7), seed=4, dtype=dtype)
-    gen = torch.Generator().manual_seed(1)
-    pts = (torch.rand(500, 3, generator=gen, dtype=torch.float64) * 2.4 - 1.2).to(dtype)
-    b = torch.randint(0, 2, (500,), generator=gen)
-    grads = []
-    for track_points in (False, True):
-        v = values.clone().requires_grad_(True)
-        p = pts.clone().requires_grad_(track_points)
-        f = SDFGrid(v).sample(p, b)
-        (f * torch.linspace(-1.0, 2.0, 500, dtype=dtype)).sum().backward()
-        grads.append((f.detach(), v.grad))
-    assert torch.equal(grads[0][0], grads[1][0])
-    tol = dict(rtol=1e-5, atol=1e-5) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-12)
-    torch.testing.assert_close(grads[0][1], grads[1][1], **tol)
 
 
 # ---------------------------------------------------------------------------- thread pool
