@@ -2,9 +2,9 @@
 
 Sphere tracing finds where rays meet the surface without gradients; only the local shading at the
 hits (and the soft silhouettes) is differentiable. Both stages run as fused numba kernels (CPU or
-CUDA, ``renderer.kernels``, ``renderer.stage2``) where available; their plain-PyTorch versions
+CUDA, ``renderer.fused`` over ``renderer.kernels``) where available; their plain-PyTorch versions
 (``renderer.reference``, ``renderer.shading``) are the specification, used by
-``backend="reference"`` and as the fallback.
+``backend="reference"`` and as the fallback; ``renderer.backends`` chooses.
 
     >>> import torch, renderer
     >>> grid = renderer.SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 64)
@@ -22,15 +22,18 @@ import os as _os
 
 _os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
 
+from .backends import backend_available, stage2_available  # noqa: E402
 from .cameras import NMR_NUM_VIEWS, Cameras  # noqa: E402
 from .examples import torus_and_sphere  # noqa: E402
 from .grid import SDFGrid  # noqa: E402
-from .render import RenderOutput, render, shade_trace  # noqa: E402
+from .kernels import start_cpu_thread_pool  # noqa: E402
+from .records import MarchResult, RenderOutput  # noqa: E402
+from .render import render  # noqa: E402
 from .scene import EFFECTS, DirectionalLight, PointLight, Scene  # noqa: E402
 from .settings import TraceSettings  # noqa: E402
-from .kernels import start_cpu_thread_pool  # noqa: E402
 from .shading import shade_lambert  # noqa: E402
-from .trace import TraceResult, backend_available, sphere_trace  # noqa: E402
+from .stage2 import shade_trace  # noqa: E402
+from .trace import sphere_trace  # noqa: E402
 
 __all__ = [
     "SDFGrid",
@@ -41,13 +44,14 @@ __all__ = [
     "PointLight",
     "EFFECTS",
     "TraceSettings",
-    "TraceResult",
+    "MarchResult",
     "RenderOutput",
     "sphere_trace",
     "render",
     "shade_trace",
     "shade_lambert",
     "backend_available",
+    "stage2_available",
     "start_cpu_thread_pool",
     "torus_and_sphere",
 ]

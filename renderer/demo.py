@@ -17,7 +17,7 @@ from . import Cameras, DirectionalLight, Scene, SDFGrid, render, torus_and_spher
 
 def save_png(path: Path, image: np.ndarray) -> None:
     """Writes an (H, W) or (H, W, C) float image in [0, 1] atomically."""
-    from PIL import Image
+    from PIL import Image  # optional (not a renderer dependency): only the demo writes PNGs
 
     arr = (np.clip(image, 0.0, 1.0) * 255).round().astype(np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,39 +1,40 @@
-"""The exact intersection: the root of the trilinear SDF along the ray near the traced point.
-
-The paper's conservative point ``p = s + f(s) v`` stops short of the surface by up to the hit
-threshold times ``1/cos(theta) - 1``. Here the root of ``g(t) = trilinear(s + t v)`` is found
-robustly instead:
-
-1. Bracket: sample g at ``t = +-k delta`` (k = 1..BRACKET_STEPS, ``delta = max(|g(0)|, h/20)``),
-   nearest first, and take the first sign change around ``t = 0``.
-2. Bisection inside the bracket (no gradient), to float precision.
-3. Implicit differentiation: with ``t*`` the root, ``dt*/dvalues = -(dg/dvalues) / (dg/dt)``;
-   implemented as ``t = t* - g(t*) / g'(t*)`` with ``t*`` and ``g'`` detached (its value is t*).
-4. Fallback to the conservative point where no sign change is found (the ray passed within the
-   threshold without crossing) or where the ray grazes the surface (``|g'| < GRAZING_COS * |grad|``),
-   where the root's derivative blows up.
+"""The exact intersection, ``hit_points_exact``: the root of the trilinear SDF along the ray near
+the traced point, found robustly (bracket, bisection, implicit differentiation; its docstring gives
+the rule), where the paper's conservative point ``p = s + f(s) v`` stops short of the surface by up
+to the hit threshold times ``1/cos(theta) - 1``.
 """
 from __future__ import annotations
 
 import torch
 
 from .grid import SDFGrid
-from .shading import hit_points_conservative
 
 BRACKET_STEPS = 8
 GRAZING_COS = 0.05
 
 
-def hit_points_exact(grid: SDFGrid, s: torch.Tensor, v: torch.Tensor, b: torch.Tensor):
-    """Exact hit points on the trilinear surface near traced points.
+def hit_points_exact(grid: SDFGrid, s: torch.Tensor, v: torch.Tensor, b: torch.Tensor, p_cons: torch.Tensor,
+                     dt_cons: torch.Tensor):
+    """Exact hit points on the trilinear surface near traced points: the root of
+    ``g(t) = trilinear(s + t v)``.
+
+    1. Bracket: sample g at ``t = +-k delta`` (k = 1..BRACKET_STEPS, ``delta = max(|g(0)|, h/20)``),
+       nearest first, and take the first sign change around ``t = 0``.
+    2. Bisection inside the bracket (no gradient), to float precision.
+    3. Implicit differentiation: with ``t*`` the root, ``dt*/dvalues = -(dg/dvalues) / (dg/dt)``;
+       implemented as ``t = t* - g(t*) / g'(t*)`` with ``t*`` and ``g'`` detached (its value is t*).
+    4. Fallback to the conservative point where no sign change is found (the ray passed within the
+       threshold without crossing) or where the ray grazes the surface (``|g'| < GRAZING_COS * |grad|``),
+       where the root's derivative blows up.
 
     Args:
         s: (K, 3) traced points (world, detached); v: (K, 3) unit directions; b: (K,) grid index.
+        p_cons, dt_cons: (K, 3), (K,) the conservative hit points and offsets
+            (``renderer.shading.hit_points_conservative``), the fallback.
     Returns:
         p: (K, 3) hit points; dt: (K,) offset along the ray (``depth = t + dt``); differentiable
         w.r.t. the grid values through the implicit function theorem.
     """
-    p_cons, dt_cons = hit_points_conservative(grid, s, v, b)
     k = s.shape[0]
     if k == 0:
         return p_cons, dt_cons

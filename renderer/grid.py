@@ -1,12 +1,10 @@
-"""SDFGrid: a batch of signed distance fields sampled on a regular grid.
-
-Coordinate frame: world coordinates. ``values[b, i, j, k]`` is the SDF at the world point
-``(x_i, y_j, z_k)`` with ``x_i = bbox_min.x + i * (bbox_max.x - bbox_min.x) / (Nx - 1)`` (samples lie
-on the box faces), which is what ``torch.meshgrid(x, y, z, indexing="ij")`` produces.
-
-The continuous SDF is the trilinear interpolation of the samples; points outside the box are
-clamped onto it. Every sampling routine here is plain PyTorch and differentiable with respect to
-the grid values (and the query points).
+"""SDFGrid: a batch of signed distance fields sampled on a regular grid, in world coordinates:
+``values[b, i, j, k]`` is the SDF at the world point ``(x_i, y_j, z_k)`` with
+``x_i = bbox_min.x + i * (bbox_max.x - bbox_min.x) / (Nx - 1)`` (samples lie on the box faces), as
+``torch.meshgrid(x, y, z, indexing="ij")`` gives them. The continuous SDF is the trilinear
+interpolation of the samples; points outside the box are clamped onto it. Every sampling here is
+plain PyTorch, differentiated by autograd with respect to the grid values and the query points
+(renderer/shared_gradient.py gathers for two of them into one shared gradient buffer, for speed).
 """
 from __future__ import annotations
 
@@ -14,7 +12,6 @@ import math
 from typing import Callable, Sequence, Union
 
 import torch
-from torch.autograd.function import once_differentiable
 
 BoundLike = Union[float, Sequence[float], torch.Tensor]
 
@@ -234,9 +231,7 @@ class SDFGrid:
         vox = self.voxel_size
         spans = torch.cat([(2 - low.to(dt)) * vox, (2 - high.to(dt)) * vox], dim=1)  # (K, 6): bit 0, bit 1
         inv_span = (1 / spans).index_select(1, tables["span"])
-        source, sink = self._source_and_sink()
-        grad = _StencilGradient.apply(source, vertex, w, inv_span, tables, sink)
-        return grad.reshape(*shape, 3)
+        return self._interpolate_stencil(vertex, w, inv_span, tables).reshape(*shape, 3)
 
     def _clamped_stencil(self, b: torch.Tensor, i0: torch.Tensor, positions: torch.Tensor) -> torch.Tensor:
         """Flat indices (K, 32) of the stencil vertices at ``positions`` (32, 3) (per axis 0..3 for
@@ -277,47 +272,25 @@ class SDFGrid:
         offsets = offsets.to(base.dtype)
         # The 8 corners in one gather, ordered c000, c001, c010, ..., c111 (bits x, y, z).
         corners = base[:, None] + offsets  # (R, 8)
-        if w.requires_grad or not (torch.is_grad_enabled() and self.values.requires_grad):
-            return _lerp_corners(self._gather(corners), w)
-        # Fixed points (the traced ones): a backward for the values alone, one pass.
-        source, sink = self._source_and_sink()
-        return _TrilinearAtFixedPoints.apply(source, corners, w, sink)
+        return self._interpolate_corners(corners, w)
 
-    def _source_and_sink(self) -> tuple[torch.Tensor, "_GradientSink | None"]:
-        """What the custom gathers read and where their backward scatters: on a grid from
-        ``_with_shared_gradient`` its proxy of the flat values and the shared sink, else the flat
-        values themselves and no sink (each backward makes its own gradient)."""
-        shared = getattr(self, "_shared", None)
-        return shared if shared is not None else (self.values.reshape(-1), None)
+    def _interpolate_corners(self, corners: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+        """Trilinear interpolation (R,) of the values at the flat indices ``corners`` (R, 8) (order
+        c000, ..., c111) with the fractions w (R, 3). Plain autograd; renderer/shared_gradient.py
+        overrides the gather."""
+        return lerp_corners(self.values.reshape(-1).index_select(0, corners.reshape(-1)).view(corners.shape), w)
 
-    def _gather(self, index: torch.Tensor) -> torch.Tensor:
-        """The flat grid values at a long index of any shape, differentiable w.r.t. the values.
-
-        index_select, whose backward is one index_add_ (a plain ``values[index]`` is slower both
-        ways); on a grid from ``_with_shared_gradient`` the backward adds into the one shared buffer.
-        """
-        shared = getattr(self, "_shared", None)
-        flat_index = index.reshape(-1)
-        if shared is None:
-            return self.values.reshape(-1).index_select(0, flat_index).view(index.shape)
-        proxy, sink = shared
-        return _SinkGather.apply(proxy, flat_index, sink).view(index.shape)
-
-    def _with_shared_gradient(self) -> "SDFGrid":
-        """The same grid (same values, same box) for one differentiable pass that samples it many times.
-
-        Each sampling of a grid otherwise gets its own full-size gradient in backward (zeroed,
-        scattered into, then summed with the others: several passes over B*Nx*Ny*Nz values); the
-        samplings of the returned grid all scatter into one buffer, handed to ``values`` once.
-        Gradients are the same; only first derivatives are supported (double backward raises).
-        Returns ``self`` when no gradient is being recorded for ``values``.
-        """
-        if not (torch.is_grad_enabled() and self.values.requires_grad):
-            return self
-        out = SDFGrid._unchecked(self.values, self.bbox_min, self.bbox_max)
-        sink = _GradientSink()
-        out._shared = (_SinkRoot.apply(self.values.reshape(-1), sink), sink)
-        return out
+    def _interpolate_stencil(self, vertex: torch.Tensor, w: torch.Tensor, inv_span: torch.Tensor,
+                             tables: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The normal construction of ``sample_gradient`` (K, 3), as 2-D products with the constant
+        tables of ``_stencil_tables`` (column e = 3 * corner + axis): gather the 32 stencil vertices
+        ``vertex`` (K, 32); ``d = (stencil @ diff) * inv_span`` (K, 24) are the central differences
+        at the cell's 8 corners along x, y, z; the gradient is their trilinear interpolation with the
+        fractions w (K, 3), ``(weight24 * d) @ axis_sum``. Plain autograd;
+        renderer/shared_gradient.py overrides the gather."""
+        k = vertex.shape[0]
+        stencil = self.values.reshape(-1).index_select(0, vertex.reshape(-1)).view(k, 32)
+        return stencil_gradient(stencil, w, inv_span, tables)
 
     # ------------------------------------------------------------------ whole-grid operations
     def vertex_gradient(self) -> torch.Tensor:
@@ -378,10 +351,9 @@ def _stencil_tables(device: torch.device, resolution: tuple[int, int, int],
                     dtype: torch.dtype) -> dict[str, torch.Tensor]:
     """The stencil tables on ``device``: ``offsets`` (32,), the vertices' flat offsets from the
     cell's first corner in a grid of this resolution; and constant matrices in ``dtype`` for
-    ``_StencilGradient`` (column e = 3 * corner + axis): ``diff`` (32, 24), +1 at (hi[e], e) and
+    ``stencil_gradient`` (column e = 3 * corner + axis): ``diff`` (32, 24), +1 at (hi[e], e) and
     -1 at (lo[e], e), so ``stencil @ diff`` is every difference ``hi - lo``; ``repeat`` (8, 24),
-    each corner to its 3 columns; ``axis_sum`` (24, 3) and ``corner_sum`` (24, 8), the sums over
-    corners and over axes; ``diff_t`` and ``axis_sum_t``, contiguous transposes."""
+    each corner to its 3 columns; ``axis_sum`` (24, 3), the sum over corners."""
     key = (device, resolution, dtype)
     if key not in _STENCIL_ON:
         strides = torch.tensor([resolution[1] * resolution[2], resolution[2], 1])
@@ -390,18 +362,17 @@ def _stencil_tables(device: torch.device, resolution: tuple[int, int, int],
         diff = torch.zeros(32, 24, dtype=dtype)
         diff[_STENCIL["hi"], entries] = 1.0
         diff[_STENCIL["lo"], entries] = -1.0
-        corner_sum = torch.zeros(24, 8, dtype=dtype)
-        corner_sum[entries, entries // 3] = 1.0
+        repeat = torch.zeros(8, 24, dtype=dtype)
+        repeat[entries // 3, entries] = 1.0
         axis_sum = torch.zeros(24, 3, dtype=dtype)
         axis_sum[entries, entries % 3] = 1.0
-        mats = {"diff": diff, "diff_t": diff.T.contiguous(), "repeat": corner_sum.T.contiguous(),
-                "corner_sum": corner_sum, "axis_sum": axis_sum, "axis_sum_t": axis_sum.T.contiguous()}
+        mats = {"diff": diff, "repeat": repeat, "axis_sum": axis_sum}
         _STENCIL_ON[key] = {**{k: v.to(device) for k, v in _STENCIL.items()}, "offsets": offsets.to(device),
                             **{k: v.to(device) for k, v in mats.items()}}
     return _STENCIL_ON[key]
 
 
-def _lerp_corners(c: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
+def lerp_corners(c: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     """Trilinear interpolation of corner values c (R, 8) (order c000, c001, ..., c111) with
     fractions w (R, 3): halved along z, y, x (unbind rather than strided slices: cheaper in backward)."""
     wx, wy, wz = w.unbind(1)
@@ -413,149 +384,24 @@ def _lerp_corners(c: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
     return c0 + (c1 - c0) * wx
 
 
-def _corner_weights(w: torch.Tensor, scale: torch.Tensor | None = None) -> torch.Tensor:
+def corner_weights(w: torch.Tensor) -> torch.Tensor:
     """(R, 8) trilinear weights of the corners (order c000, ..., c111) for fractions w (R, 3):
-    ``(x * y) * z`` per corner, each times ``scale`` (R,) if given (folded into the x factors).
-    Products of (R,) vectors, then one stack: broadcasting over the size-2 axes instead measured
-    several times slower."""
+    ``(x * y) * z`` per corner. Products of (R,) vectors, then one stack: broadcasting over the
+    size-2 axes instead measured several times slower."""
     wx, wy, wz = w.unbind(1)
     x, y, z = (1 - wx, wx), (1 - wy, wy), (1 - wz, wz)
-    if scale is not None:
-        x = (x[0] * scale, x[1] * scale)
     xy = [x[i] * y[j] for i in (0, 1) for j in (0, 1)]
     return torch.stack([xy[c >> 1] * z[c & 1] for c in range(8)], dim=1)
 
 
-def _weights_derivative(e: torch.Tensor, w: torch.Tensor) -> torch.Tensor:
-    """(R, 3): the derivative of ``sum_c corner_weight_c(w) * e_c`` w.r.t. w, for e (R, 8)."""
-    wx, wy, wz = w.unbind(1)
-    x, y, z = (1 - wx, wx), (1 - wy, wy), (1 - wz, wz)
-    c = e.unbind(1)  # c[4 * bx + 2 * by + bz]
-    dx = sum((c[4 + 2 * j + m] - c[2 * j + m]) * (y[j] * z[m]) for j in (0, 1) for m in (0, 1))
-    dy = sum((c[4 * i + 2 + m] - c[4 * i + m]) * (x[i] * z[m]) for i in (0, 1) for m in (0, 1))
-    dz = sum((c[4 * i + 2 * j + 1] - c[4 * i + 2 * j]) * (x[i] * y[j]) for i in (0, 1) for j in (0, 1))
-    return torch.stack([dx, dy, dz], dim=1)
-
-
-def _scatter_gradient(index: torch.Tensor, contrib: torch.Tensor, numel: int,
-                      sink: "_GradientSink | None") -> torch.Tensor | None:
-    """A custom gather's backward onto the flat values (numel,): ``contrib`` added at ``index``,
-    into the shared ``sink`` (then None: the sink hands the sum on) or into a fresh gradient."""
-    if sink is not None:
-        sink.add(index, contrib, numel)
-        return None
-    return torch.zeros(numel, dtype=contrib.dtype, device=contrib.device).index_add_(0, index, contrib)
-
-
-class _StencilGradient(torch.autograd.Function):
-    """The normal construction of ``SDFGrid.sample_gradient`` with a backward written out, as
-    2-D products with the constant tables of ``_stencil_tables`` (column e = 3 * corner + axis).
-
-    Forward: gather the 32 stencil vertices (K, 32); ``d = (stencil @ diff) * inv_span`` (K, 24)
-    are the central differences at the cell's 8 corners along x, y, z; the gradient is their
-    trilinear interpolation ``(weight24 * d) @ axis_sum``. Backward: for the values,
-    ``(weight24 * grad24 * inv_span) @ diff.T`` onto the 32 vertices and one scatter; for the
-    fractions w, the derivative of the trilinear weights against each corner's ``d . grad``.
-    (Autograd's walk through the same steps, on (K, 8, 3) broadcasts, took several times longer.)
-    """
-
-    @staticmethod
-    def forward(ctx, source, vertex, w, inv_span, tables, sink):
-        k = vertex.shape[0]
-        stencil = source.index_select(0, vertex.reshape(-1)).view(k, 32)
-        d = stencil @ tables["diff"] * inv_span
-        weight24 = _corner_weights(w) @ tables["repeat"]  # each corner's weight in its 3 columns
-        ctx.save_for_backward(vertex, w, inv_span, d, weight24)
-        ctx.tables, ctx.sink, ctx.numel = tables, sink, source.shape[0]
-        return (weight24 * d) @ tables["axis_sum"]
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad: torch.Tensor):
-        vertex, w, inv_span, d, weight24 = ctx.saved_tensors
-        tables = ctx.tables
-        grad24 = grad @ tables["axis_sum_t"]  # grad[a] in column 3 c + a
-        grad_source = grad_w = None
-        if ctx.needs_input_grad[0]:
-            contrib = (weight24 * grad24 * inv_span) @ tables["diff_t"]
-            grad_source = _scatter_gradient(vertex.reshape(-1), contrib.reshape(-1), ctx.numel, ctx.sink)
-        if ctx.needs_input_grad[2]:
-            grad_w = _weights_derivative((d * grad24) @ tables["corner_sum"], w)
-        return grad_source, None, grad_w, None, None, None
-
-
-class _TrilinearAtFixedPoints(torch.autograd.Function):
-    """Trilinear samples at points that carry no gradient: the forward of ``_lerp_corners``, and a
-    backward for the grid values alone (weights times the incoming gradient, one scatter) instead
-    of autograd's walk back through every interpolation step."""
-
-    @staticmethod
-    def forward(ctx, source: torch.Tensor, corners: torch.Tensor, w: torch.Tensor, sink) -> torch.Tensor:
-        ctx.save_for_backward(corners, w)
-        ctx.sink, ctx.numel = sink, source.shape[0]
-        return _lerp_corners(source.index_select(0, corners.reshape(-1)).view(corners.shape), w)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad: torch.Tensor):
-        corners, w = ctx.saved_tensors
-        contrib = _corner_weights(w, grad).reshape(-1)
-        return _scatter_gradient(corners.reshape(-1), contrib, ctx.numel, ctx.sink), None, None, None
-
-
-class _GradientSink:
-    """The gradient of one grid's flat values, accumulated from many gathers into one buffer."""
-
-    def __init__(self) -> None:
-        self.grad: torch.Tensor | None = None
-
-    def add(self, index: torch.Tensor, grad: torch.Tensor, numel: int) -> None:
-        if self.grad is None:
-            self.grad = torch.zeros(numel, dtype=grad.dtype, device=grad.device)
-        self.grad.index_add_(0, index, grad)
-
-    def take(self) -> torch.Tensor | None:
-        grad, self.grad = self.grad, None
-        return grad
-
-
-class _SinkRoot(torch.autograd.Function):
-    """Identity on the flat values; in backward it hands on what the gathers put into the sink.
-
-    Autograd runs it after every gather that read its output (they depend on it), so the sink is
-    complete by then.
-    """
-
-    @staticmethod
-    def forward(ctx, flat: torch.Tensor, sink: _GradientSink) -> torch.Tensor:
-        ctx.sink = sink
-        ctx.set_materialize_grads(False)
-        return flat.view_as(flat)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad: torch.Tensor | None):
-        collected = ctx.sink.take()
-        if grad is not None:  # the proxy was also used directly
-            collected = grad if collected is None else collected + grad
-        return collected, None
-
-
-class _SinkGather(torch.autograd.Function):
-    """proxy[index] whose backward scatters into the sink instead of making a full-size gradient."""
-
-    @staticmethod
-    def forward(ctx, proxy: torch.Tensor, index: torch.Tensor, sink: _GradientSink) -> torch.Tensor:
-        ctx.save_for_backward(index)
-        ctx.sink, ctx.numel = sink, proxy.shape[0]
-        return proxy.index_select(0, index)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad: torch.Tensor):
-        (index,) = ctx.saved_tensors
-        ctx.sink.add(index, grad.contiguous(), ctx.numel)
-        return None, None, None
+def stencil_gradient(stencil: torch.Tensor, w: torch.Tensor, inv_span: torch.Tensor,
+                     tables: dict[str, torch.Tensor]) -> torch.Tensor:
+    """(K, 3) the trilinear interpolation with fractions w (K, 3) of the central differences at a
+    cell's corners, from its 32 stencil values (K, 32) and inverse spacings (K, 24) (see
+    ``SDFGrid._interpolate_stencil``)."""
+    d = stencil @ tables["diff"] * inv_span
+    weight24 = corner_weights(w) @ tables["repeat"]  # each corner's weight in its 3 columns
+    return (weight24 * d) @ tables["axis_sum"]
 
 
 def _resolution3(resolution: Union[int, Sequence[int]]) -> tuple[int, int, int]:

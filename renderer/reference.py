@@ -1,32 +1,13 @@
-"""The vectorised-PyTorch sphere-tracing march: the specification the fused kernels must match.
-
-Per ray (origin o, unit direction d, the grid it reads, its pixel angle), without gradients:
-
-1. Box entry/exit ``[t_near, t_far]`` by the slab test; the march starts at ``t0 = max(t_near, 0)``
-   (the eye may be inside the box). A ray that misses the box is a miss whose closest approach is
-   the point on the ray nearest the box centre, clamped into the box.
-2. ``sign`` = -1 if the SDF at the start is negative (the eye is inside the shape; the ray then
-   looks for the surface from inside), else +1. All tests below use ``f = sign * sdf``.
-3. March: ``f = sign * sdf(o + t d)``; if ``f < thr(t)`` the ray hits at t; else ``t += f``; the
-   ray misses when ``t > t_far`` or after ``max_steps`` samples. ``thr(t)`` is
-   ``settings.threshold`` if given, else ``threshold_scale * t * pixel_angle`` (the pixel footprint),
-   never below ``min_threshold`` (so every step makes progress). The sample with the smallest f
-   is the closest approach (used for the silhouettes of misses).
-4. Hits with sign +1 then look for the smallest SDF along the rest of the ray (for the soft
-   silhouette of hits): from the hit, step by ``max(|sdf|, thr)`` (a safe sphere-tracing step inside
-   and outside the shape, so a ray that leaves a thin part goes on to what lies behind it), at most
-   ``inner_steps`` samples, stopping once the smallest SDF is below ``-inner_depth * thr(t)`` (the
-   silhouette is saturated) or past t_far.
-   Rays with sign -1 use their start point.
-
-The outputs per ray: ``t`` (traced distance, 0 for rays that miss the box), ``hit``, ``extreme``
-(the closest-approach/deepest point, world), ``t_extreme`` and ``steps`` (SDF samples taken in 3).
+"""The vectorised-PyTorch sphere-tracing march, ``march_reference``: stage 1's specification,
+which the fused kernels (renderer/fused.py, renderer/kernels/) must match step for step; its
+docstring gives the rule.
 """
 from __future__ import annotations
 
 import torch
 
 from .grid import SDFGrid
+from .records import MarchedRays
 from .settings import TraceSettings
 
 # Direction components smaller than this are treated as this (keeping their sign), so the slab
@@ -59,15 +40,37 @@ def march_reference(
     grid_index: torch.Tensor,
     pixel_angle: torch.Tensor,
     settings: TraceSettings,
-) -> dict[str, torch.Tensor]:
-    """Sphere-traces R rays through ``grid`` (see the module docstring).
+) -> MarchedRays:
+    """Sphere-traces R rays through ``grid``.
+
+    Per ray (origin o, unit direction d, the grid it reads, its pixel angle), without gradients:
+
+    1. Box entry/exit ``[t_near, t_far]`` by the slab test; the march starts at ``t0 = max(t_near, 0)``
+       (the eye may be inside the box). A ray that misses the box is a miss whose closest approach is
+       the point on the ray nearest the box centre, clamped into the box.
+    2. ``sign`` = -1 if the SDF at the start is negative (the eye is inside the shape; the ray then
+       looks for the surface from inside), else +1. All tests below use ``f = sign * sdf``.
+    3. March: ``f = sign * sdf(o + t d)``; if ``f < thr(t)`` the ray hits at t; else ``t += f``; the
+       ray misses when ``t > t_far`` or after ``max_steps`` samples. ``thr(t)`` is
+       ``settings.threshold`` if given, else ``threshold_scale * t * pixel_angle`` (the pixel footprint),
+       never below ``min_threshold`` (so every step makes progress). The sample with the smallest f
+       is the closest approach (used for the silhouettes of misses).
+    4. Hits with sign +1 then look for the smallest SDF along the rest of the ray (for the soft
+       silhouette of hits): from the hit, step by ``max(|sdf|, thr)`` (a safe sphere-tracing step inside
+       and outside the shape, so a ray that leaves a thin part goes on to what lies behind it), at most
+       ``inner_steps`` samples, stopping once the smallest SDF is below ``-inner_depth * thr(t)`` (the
+       silhouette is saturated) or past t_far.
+       Rays with sign -1 use their start point.
+
+    The outputs per ray: ``t`` (traced distance, 0 for rays that miss the box), ``hit``, ``extreme``
+    (the closest-approach/deepest point, world), ``t_extreme`` and ``steps`` (SDF samples taken in 3).
 
     Args:
         origins, directions: (R, 3) world, directions of unit length, grid dtype.
         grid_index: (R,) long, which grid of the batch each ray reads.
         pixel_angle: (R,) pixel footprint per unit distance.
     Returns:
-        dict with t (R,), hit (R,) bool, extreme (R, 3), t_extreme (R,), steps (R,) int32.
+        MarchedRays (detached, the grid's dtype and device).
     """
     dt = grid.dtype
     o = origins.to(dt)
@@ -166,4 +169,4 @@ def march_reference(
     extreme[inside_miss] = o[inside_miss] + t0[inside_miss, None] * d[inside_miss]
     t_ext[inside_miss] = t0[inside_miss]
 
-    return {"t": t, "hit": hit, "extreme": extreme, "t_extreme": t_ext, "steps": steps}
+    return MarchedRays(t=t, hit=hit, extreme=extreme, t_extreme=t_ext, steps=steps)

@@ -1,15 +1,65 @@
-"""The differentiable stage: hit points, normals, lights, materials and soft silhouettes.
-
-Everything here is plain PyTorch on flat lists of rays (K hit rays or R rays), differentiable with
-respect to the grid values. The traced points come in detached: gradients reach the grid only
-through the SDF samples read here (the paper's local-shading approximation).
+"""Stage 2 in plain PyTorch, ``shade_reference``: the specification the fused stage 2
+(renderer/fused.py) is tested against, and its fallback; with its parts (hit points, normals,
+Lambert shading, soft silhouettes), each on flat lists of rays (K hit rays or R rays) and
+differentiable w.r.t. the grid values by autograd. The traced points come in detached: gradients
+reach the grid only through the SDF samples read here (the paper's local-shading approximation).
 """
 from __future__ import annotations
 
 import torch
 
+from .exact import hit_points_exact
 from .grid import SDFGrid
+from .records import Shading, ShadingRays
+from .reference import min_threshold
 from .scene import DirectionalLight, PointLight, Scene
+
+
+def shade_reference(grid: SDFGrid, rays: ShadingRays, scene: Scene) -> Shading:
+    """The passes ``scene.effects`` need, for R rays marched through ``grid``, in plain autograd
+    (given a plain SDFGrid; renderer/stage2.py passes ``with_shared_gradient(grid)``, whose
+    samplings give the same values and gradients faster).
+
+    Hit rays get the hit point (conservative or exact, ``scene.intersection``), then the depth, the
+    normal and the shading the scene asks for; every ray that entered the grid's box gets the soft
+    silhouette at its extreme point (0 for the others: the SDF is undefined outside the box).
+
+    Returns:
+        Shading of the R rays (the grid's dtype and device), differentiable w.r.t. ``grid.values``.
+    """
+    total = rays.count
+    depth = normal = image = silhouette = None
+    if scene.needs_hit_points():
+        idx = rays.hit.nonzero().squeeze(1)
+        cam = idx // rays.pixels
+        gi = rays.camera_grid[cam]
+        s, v = rays.points[idx], rays.directions[idx]
+        p, dt_off = hit_points_conservative(grid, s, v, gi)
+        if scene.intersection == "exact":
+            p, dt_off = hit_points_exact(grid, s, v, gi, p, dt_off)
+        if scene.wants("depth"):
+            depth = _scatter(rays.t[idx] + dt_off, idx, total, 0.0)
+        if scene.needs_normals():
+            n = surface_normals(grid, p, gi, v)
+            if scene.wants("normal"):
+                normal = _scatter(n, idx, total, 0.0)
+            if scene.wants("shading"):
+                image = _scatter(shade_lambert(n, p, rays.eyes[cam], scene), idx, total, scene.background)
+    if scene.wants("silhouette"):
+        ray_cam = rays.camera()
+        foot = torch.clamp(rays.t_extreme * rays.pixel_angle[ray_cam], min=min_threshold(grid))
+        sil = soft_silhouette(grid, rays.extreme, rays.camera_grid[ray_cam], foot, scene.silhouette_sigma)
+        # Rays that never enter the grid's box see nothing (the SDF is undefined outside it): they
+        # are the rays the march took no sample on (every march samples a ray that enters).
+        silhouette = torch.where(rays.steps > 0, sil, torch.zeros_like(sil))
+    return Shading(depth=depth, normal=normal, silhouette=silhouette, image=image)
+
+
+def _scatter(values: torch.Tensor, index: torch.Tensor, total: int, fill) -> torch.Tensor:
+    """(total, ...) filled with ``fill``, ``values`` (K, ...) at rows ``index`` (K,); differentiable."""
+    out = torch.empty((total, *values.shape[1:]), dtype=values.dtype, device=values.device)
+    out[...] = torch.as_tensor(fill, dtype=values.dtype, device=values.device)
+    return out.index_put((index,), values)
 
 
 def hit_points_conservative(grid: SDFGrid, s: torch.Tensor, v: torch.Tensor, b: torch.Tensor):

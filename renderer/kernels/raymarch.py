@@ -465,8 +465,8 @@ def make_cuda_kernel():
 
 
 # ============================================================================ stage 2
-# The differentiable stage, per ray: renderer/render.py's ``shade_trace`` with the conservative hit
-# point of renderer/shading.py (p = s + f(s) v), its normals (central differences at the cell's
+# The differentiable stage, per ray: renderer/shading.py's ``shade_reference`` with the
+# conservative hit point (p = s + f(s) v), its normals (central differences at the cell's
 # corners, trilinearly interpolated at p, normalised), Lambert shading and the soft silhouette,
 # forward (``shade_ray``) and backward (``shade_ray_backward``: the gradients of one ray's outputs
 # with respect to the SDF samples it read, then ``scatter_ray``: those gradients added into the

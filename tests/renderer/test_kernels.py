@@ -8,6 +8,7 @@ without a GPU, in numba's CUDA simulator and by compiling it to PTX where libNVV
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -20,8 +21,9 @@ import numba
 import pytest
 import torch
 
-import renderer.trace as trace_module
-from renderer import Cameras, SDFGrid, Scene, TraceSettings, kernels, render, sphere_trace
+from renderer import Cameras, SDFGrid, Scene, TraceSettings, backends, kernels, render, sphere_trace
+from renderer.fused import march_fused
+from renderer.records import MarchedRays
 from renderer.reference import march_reference
 from renderer.trace import camera_grid_index
 
@@ -32,7 +34,8 @@ DTYPES = [torch.float32, torch.float64]
 BACKENDS = ["cpu", pytest.param("cuda", marks=pytest.mark.cuda)]
 ALL = Scene(effects=("silhouette", "depth", "normal", "shading"), camera_light=1.0)
 
-pytestmark = pytest.mark.skipif(not kernels.available("cpu")[0], reason="numba is unavailable")
+pytestmark = pytest.mark.skipif(not backends.march_available("cpu")[0], reason="numba is unavailable")
+RAY_FIELDS = [f.name for f in dataclasses.fields(MarchedRays)]
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -79,16 +82,16 @@ def assert_same_march(grid, rays, settings, ref, fused):
     tol = (1e-4 if dt == torch.float32 else 1e-9) * vox
     loose_misses = is_cuda_float32(grid)
     scale = float(grid.values.detach().abs().max())
-    ref = {k: v.cpu() for k, v in ref.items()}
-    fused = {k: v.cpu() for k, v in fused.items()}
+    ref = MarchedRays(**{k: getattr(ref, k).cpu() for k in RAY_FIELDS})
+    fused = MarchedRays(**{k: getattr(fused, k).cpu() for k in RAY_FIELDS})
     cpu_grid = SDFGrid(grid.values.detach().cpu(), grid.bbox_min.cpu(), grid.bbox_max.cpu())
     gi, pix = gi.cpu(), pix.cpu()
 
-    differ = ref["hit"] != fused["hit"]
+    differ = ref.hit != fused.hit
     if differ.any():
         # The variant that missed came within the threshold (plus rounding) of the surface.
-        ext = torch.where(ref["hit"][:, None], fused["extreme"], ref["extreme"])[differ]
-        t_ext = torch.where(ref["hit"], fused["t_extreme"], ref["t_extreme"])[differ]
+        ext = torch.where(ref.hit[:, None], fused.extreme, ref.extreme)[differ]
+        t_ext = torch.where(ref.hit, fused.t_extreme, ref.t_extreme)[differ]
         closest = cpu_grid.sample(ext, gi[differ]).abs()
         margin = threshold(t_ext, pix[differ], cpu_grid, settings) + 10 * tol + 64 * eps * scale
         assert (closest <= margin).all(), f"{int(differ.sum())} hit flags differ away from the margin"
@@ -103,26 +106,26 @@ def assert_same_march(grid, rays, settings, ref, fused):
         assert not bad.any(), f"{name}: max error {float(err.max()):.3g} (voxel {vox:.3g}, tol {tol:.3g})"
 
     if loose_misses:
-        hits, misses = same & ref["hit"], same & ~ref["hit"]
-        close("t (hits)", fused["t"][hits], ref["t"][hits])
-        t_ref = ref["t"][misses]
-        err = (fused["t"][misses] - t_ref).abs()
+        hits, misses = same & ref.hit, same & ~ref.hit
+        close("t (hits)", fused.t[hits], ref.t[hits])
+        t_ref = ref.t[misses]
+        err = (fused.t[misses] - t_ref).abs()
         # plus a few ulps of t itself: far from the origin (the scaled case) one ulp is > 1e-2 voxel
         bad = err > CUDA_FLOAT32_MISS_T_VOXELS * vox + 64 * eps * t_ref.abs()
         assert not bad.any(), f"t (misses): max error {float(err.max()):.3g}"
     else:
-        close("t", fused["t"][same], ref["t"][same])
-    close("t_extreme", fused["t_extreme"][same], ref["t_extreme"][same])
-    close("extreme", fused["extreme"][same], ref["extreme"][same])
-    steps_differ = (fused["steps"][same] != ref["steps"][same]).float().mean() if same.any() else 0.0
+        close("t", fused.t[same], ref.t[same])
+    close("t_extreme", fused.t_extreme[same], ref.t_extreme[same])
+    close("extreme", fused.extreme[same], ref.extreme[same])
+    steps_differ = (fused.steps[same] != ref.steps[same]).float().mean() if same.any() else 0.0
     assert steps_differ <= 0.01, f"{float(steps_differ):.2%} of the rays took a different number of steps"
-    assert fused["t"].dtype == dt and fused["hit"].dtype == torch.bool and fused["steps"].dtype == torch.int32
+    assert fused.t.dtype == dt and fused.hit.dtype == torch.bool and fused.steps.dtype == torch.int32
 
 
 def march_both(grid, cams_or_rays, settings, backend):
     rays = camera_rays(grid, cams_or_rays) if isinstance(cams_or_rays, Cameras) else cams_or_rays
     ref = march_reference(grid, *rays, settings)
-    fused = kernels.march(backend, grid, *rays, settings)
+    fused = march_fused(backend, grid, *rays, settings)
     return rays, ref, fused
 
 
@@ -296,7 +299,7 @@ def test_zero_direction_components_and_rays_missing_the_box(dtype, backend):
     for settings in (TraceSettings(), TraceSettings(threshold=1e-4)):
         _, ref, fused = march_both(grid, (o, d, gi, pix), settings, backend)
         assert_same_march(grid, (o, d, gi, pix), settings, ref, fused)
-        assert bool(ref["hit"][0]) and not bool(ref["hit"][9]) and not bool(ref["hit"][10])
+        assert bool(ref.hit[0]) and not bool(ref.hit[9]) and not bool(ref.hit[10])
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -338,11 +341,11 @@ def test_same_result_with_one_and_two_threads():
         outs = []
         for n in (1, 2):
             torch.set_num_threads(n)
-            outs.append(kernels.march("cpu", grid, *rays, TraceSettings()))
+            outs.append(march_fused("cpu", grid, *rays, TraceSettings()))
     finally:
         torch.set_num_threads(before)
-    for key in outs[0]:
-        assert torch.equal(outs[0][key], outs[1][key]), key
+    for key in RAY_FIELDS:
+        assert torch.equal(getattr(outs[0], key), getattr(outs[1], key)), key
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -358,12 +361,12 @@ def test_interleaved_lanes_do_not_depend_on_ray_order(dtype):
     o, d, gi, pix = camera_rays(grid, cams)
     assert o.shape[0] > 4 * raymarch.BLOCK
     settings = TraceSettings(max_steps=40)
-    straight = kernels.march("cpu", grid, o, d, gi, pix, settings)
-    assert straight["hit"].any() and not straight["hit"].all()
+    straight = march_fused("cpu", grid, o, d, gi, pix, settings)
+    assert straight.hit.any() and not straight.hit.all()
     perm = torch.randperm(o.shape[0], generator=torch.Generator().manual_seed(0))
-    shuffled = kernels.march("cpu", grid, o[perm], d[perm], gi[perm], pix[perm], settings)
-    for key in straight:
-        assert torch.equal(shuffled[key], straight[key][perm]), key
+    shuffled = march_fused("cpu", grid, o[perm], d[perm], gi[perm], pix[perm], settings)
+    for key in RAY_FIELDS:
+        assert torch.equal(getattr(shuffled, key), getattr(straight, key)[perm]), key
 
 
 # ---------------------------------------------------------------------------- dispatch and input
@@ -375,8 +378,8 @@ def test_auto_picks_the_fused_kernel_for_cpu_tensors():
 
 def test_auto_falls_back_to_the_reference_with_one_warning(monkeypatch, caplog):
     """Loudly: a RuntimeWarning and a logged warning (which reaches the commands' log files), once."""
-    monkeypatch.setattr(kernels, "available", lambda backend: (False, "testing the fallback"))
-    monkeypatch.setattr(trace_module, "_warned", set())
+    monkeypatch.setattr(backends, "march_available", lambda backend: (False, "testing the fallback"))
+    monkeypatch.setattr(backends, "_warned", set())
     grid = _grid(sphere_sdf(0.5), 8, torch.float32)
     cams = _look([[0.0, 0.0, 3.0]], size=4)
     with warnings.catch_warnings(record=True) as caught, caplog.at_level("WARNING", logger="renderer"):
@@ -394,7 +397,7 @@ def test_auto_falls_back_to_the_reference_with_one_warning(monkeypatch, caplog):
 def test_cuda_backend_is_refused_without_a_gpu_or_for_cpu_tensors():
     grid = _grid(sphere_sdf(0.5), 8, torch.float32)
     cams = _look([[0.0, 0.0, 3.0]], size=4)
-    ok, why = kernels.available("cuda")
+    ok, why = backends.march_available("cuda")
     if not ok:
         assert why
         with pytest.raises(RuntimeError, match="not available"):
@@ -409,7 +412,7 @@ def test_the_public_backend_query_agrees_with_the_kernels():
 
     assert renderer.backend_available("reference") == renderer.backend_available("auto") == (True, "")
     for backend in ("cpu", "cuda"):
-        assert renderer.backend_available(backend) == kernels.available(backend)
+        assert renderer.backend_available(backend) == backends.march_available(backend)
     with pytest.raises(ValueError, match="backend must be one of"):
         renderer.backend_available("gpu")
 
@@ -422,11 +425,11 @@ def test_a_cuda_kernel_that_cannot_be_built_means_unavailable_and_auto_falls_bac
     def broken():
         raise AttributeError("module 'numpy' has no attribute 'row_stack'")
 
-    monkeypatch.setattr(kernels, "_march_one_ray_on_gpu", broken)
-    monkeypatch.setattr(trace_module, "_warned", set())
-    kernels.available.cache_clear()
+    monkeypatch.setattr(backends, "_march_one_ray_on_gpu", broken)
+    monkeypatch.setattr(backends, "_warned", set())
+    backends.march_available.cache_clear()
     try:
-        ok, why = kernels.available("cuda")
+        ok, why = backends.march_available("cuda")
         assert not ok and "row_stack" in why
         grid = _grid(sphere_sdf(0.5), 8, torch.float32)
         grid = SDFGrid(grid.values.cuda(), grid.bbox_min.cuda(), grid.bbox_max.cuda())
@@ -434,15 +437,15 @@ def test_a_cuda_kernel_that_cannot_be_built_means_unavailable_and_auto_falls_bac
             out = sphere_trace(grid, _look([[0.0, 0.0, 3.0]], size=4), backend="auto")
         assert out.backend == "reference"
     finally:
-        kernels.available.cache_clear()  # the real check runs again once the patch is undone
+        backends.march_available.cache_clear()  # the real check runs again once the patch is undone
 
 
 def test_march_leaves_no_autograd_graph():
     values = _grid(sphere_sdf(0.5), 8, torch.float32).values.requires_grad_(True)
     grid = SDFGrid(values)
     rays = camera_rays(grid, _look([[0.0, 0.0, 3.0]], size=6))
-    out = kernels.march("cpu", grid, *rays, TraceSettings())
-    assert not any(v.requires_grad for v in out.values())
+    out = march_fused("cpu", grid, *rays, TraceSettings())
+    assert not any(getattr(out, k).requires_grad for k in RAY_FIELDS)
 
 
 @pytest.mark.parametrize("dtype", DTYPES)
@@ -462,20 +465,20 @@ def test_kernel_reads_the_tensors_without_copies(dtype, monkeypatch):
         launch(backend, cpu_kernel, cuda_kernel, tensors, rays)
 
     monkeypatch.setattr(kernels, "_launch", spy)
-    out = kernels.march("cpu", grid, *rays, TraceSettings())
+    out = march_fused("cpu", grid, *rays, TraceSettings())
     values, _, _, origins, directions, grid_index, pixel_angle = seen["ptrs"][:7]
     assert values == grid.values.data_ptr()
     assert (origins, directions, grid_index, pixel_angle) == tuple(x.data_ptr() for x in rays)
-    assert seen["ptrs"][7] == out["t"].data_ptr() and seen["ptrs"][9] == out["extreme"].data_ptr()
+    assert seen["ptrs"][7] == out.t.data_ptr() and seen["ptrs"][9] == out.extreme.data_ptr()
     assert all(a.ctypes.data == p for a, p in zip(seen["arrays"], seen["ptrs"]))
 
 
 def test_empty_ray_batch():
     grid = _grid(sphere_sdf(0.5), 8, torch.float64)
     empty = torch.zeros(0, 3, dtype=torch.float64)
-    out = kernels.march("cpu", grid, empty, empty, torch.zeros(0, dtype=torch.long),
-                        torch.zeros(0, dtype=torch.float64), TraceSettings())
-    assert out["t"].shape == (0,) and out["extreme"].shape == (0, 3) and out["hit"].dtype == torch.bool
+    out = march_fused("cpu", grid, empty, empty, torch.zeros(0, dtype=torch.long),
+                      torch.zeros(0, dtype=torch.float64), TraceSettings())
+    assert out.t.shape == (0,) and out.extreme.shape == (0, 3) and out.hit.dtype == torch.bool
 
 
 @pytest.mark.parametrize("change, word", [
@@ -492,15 +495,15 @@ def test_bad_input_raises_naming_the_argument(change, word):
     args = dict(backend="cpu", grid=grid, origins=o, directions=d, grid_index=gi, pixel_angle=pix,
                 settings=TraceSettings())
     with pytest.raises(ValueError, match=word):
-        kernels.march(**change(args))
+        march_fused(**change(args))
     with pytest.raises(ValueError, match="backend"):
-        kernels.available("tpu")
+        backends.march_available("tpu")
 
 
 # ---------------------------------------------------------------------------- compile cache
 def test_kernels_are_loaded_from_the_disk_cache_in_a_new_process():
     grid = _grid(sphere_sdf(0.5), 8, torch.float32)
-    kernels.march("cpu", grid, *camera_rays(grid, _look([[0.0, 0.0, 3.0]], size=4)), TraceSettings())
+    march_fused("cpu", grid, *camera_rays(grid, _look([[0.0, 0.0, 3.0]], size=4)), TraceSettings())
     code = (
         "import json, torch\n"
         "from renderer import SDFGrid, Cameras, sphere_trace\n"
@@ -535,7 +538,8 @@ def test_cache_falls_back_to_a_temporary_directory(monkeypatch):
 SIMULATOR_SCRIPT = r"""
 import json, numpy as np, torch
 from renderer import SDFGrid, Cameras, TraceSettings
-from renderer.kernels import _params, raymarch
+from renderer.fused import march_params
+from renderer.kernels import raymarch
 from renderer.reference import march_reference
 from tests.renderer.analytic import torus_sdf
 from tests.renderer.test_kernels import camera_rays
@@ -543,7 +547,7 @@ from tests.renderer.test_kernels import camera_rays
 grid = SDFGrid.from_function(torus_sdf, 16)
 cams = Cameras.look_at([[0.5, 1.0, 2.5], [0.0, 0.0, 0.1]], fov_deg=50, image_size=(5, 7))
 o, d, gi, pix = camera_rays(grid, cams)
-params, iparams = _params(grid, TraceSettings())
+params, iparams = march_params(grid, TraceSettings())
 r = o.shape[0]
 outs = [np.zeros(r, np.float32), np.zeros(r, np.uint8), np.zeros((r, 3), np.float32), np.zeros(r, np.float32),
         np.zeros(r, np.int32)]
@@ -552,10 +556,10 @@ kernel[3, 32](grid.values.reshape(-1).numpy(), params.numpy(), iparams.numpy(), 
               gi.numpy(), pix.numpy(), *outs)
 ref = march_reference(grid, o, d, gi, pix, TraceSettings())
 print(json.dumps({
-    "hit_equal": bool((outs[1].astype(bool) == ref["hit"].numpy()).all()),
-    "t_err": float(np.abs(outs[0] - ref["t"].numpy()).max()),
-    "ext_err": float(np.abs(outs[2] - ref["extreme"].numpy()).max()),
-    "steps_equal": bool((outs[4] == ref["steps"].numpy()).all()),
+    "hit_equal": bool((outs[1].astype(bool) == ref.hit.numpy()).all()),
+    "t_err": float(np.abs(outs[0] - ref.t.numpy()).max()),
+    "ext_err": float(np.abs(outs[2] - ref.extreme.numpy()).max()),
+    "steps_equal": bool((outs[4] == ref.steps.numpy()).all()),
 }))
 """
 
@@ -609,7 +613,7 @@ def test_cuda_kernel_compiles_to_ptx(dtype, monkeypatch):
     assert ".entry" in ptx or ".visible .entry" in ptx
 
 
-# ---------------------------------------------------------------------------- stage-2 speed-ups
+# ---------------------------------------------------------------------------- the normal stencil
 def _gradient_per_corner(grid: SDFGrid, points: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     """The normal construction written plainly (one gather per corner and axis), to check the
     vectorised SDFGrid.sample_gradient against."""
@@ -661,55 +665,6 @@ def test_vectorised_normal_stencil_matches_the_per_corner_formula(res, dtype):
     # d/dp of the gradient is a sum of large terms of both signs: float32 rounding scales with them.
     scale = float(dp_plain.abs().max())
     torch.testing.assert_close(dp_fast, dp_plain, rtol=tol["rtol"], atol=tol["atol"] * max(1.0, scale / 10))
-
-
-def test_shared_gradient_buffer_gives_the_plain_gradients():
-    """A render's samplings share one gradient buffer (SDFGrid._with_shared_gradient): same
-    gradients as separate samplings, also with retain_graph and two backward passes, and values
-    that do not require grad take the plain path."""
-    values = random_smooth_values(2, 12, seed=3, dtype=torch.float64)
-    gen = torch.Generator().manual_seed(0)
-    pts = torch.rand(300, 3, generator=gen, dtype=torch.float64) * 2 - 1
-    b = torch.randint(0, 2, (300,), generator=gen)
-
-    def loss(grid):
-        return (grid.sample(pts, b).sin().sum() + grid.sample_gradient(pts[:100], b[:100]).pow(2).sum()
-                + grid.sample(pts[50:] * 0.5, b[50:]).sum())
-
-    v = values.clone().requires_grad_(True)
-    (plain,) = torch.autograd.grad(loss(SDFGrid(v)), v)
-    shared = SDFGrid(v)._with_shared_gradient()
-    assert getattr(shared, "_shared", None) is not None
-    total = loss(shared)
-    total.backward(retain_graph=True)
-    first = v.grad.clone()
-    total.backward()
-    torch.testing.assert_close(first, plain, rtol=1e-12, atol=1e-12)
-    torch.testing.assert_close(v.grad, 2 * plain, rtol=1e-12, atol=1e-12)
-    frozen = SDFGrid(values)
-    assert frozen._with_shared_gradient() is frozen
-    with torch.no_grad():
-        assert SDFGrid(v)._with_shared_gradient().values is v
-
-
-@pytest.mark.parametrize("dtype", DTYPES)
-def test_sampling_at_fixed_points_has_the_autograd_gradient(dtype):
-    """Samples at points without gradient use a one-pass backward for the values: it must agree
-    with autograd's walk through the interpolation (points with gradient take that path)."""
-    values = random_smooth_values(2, (6, 9, 7), seed=4, dtype=dtype)
-    gen = torch.Generator().manual_seed(1)
-    pts = (torch.rand(500, 3, generator=gen, dtype=torch.float64) * 2.4 - 1.2).to(dtype)
-    b = torch.randint(0, 2, (500,), generator=gen)
-    grads = []
-    for track_points in (False, True):
-        v = values.clone().requires_grad_(True)
-        p = pts.clone().requires_grad_(track_points)
-        f = SDFGrid(v).sample(p, b)
-        (f * torch.linspace(-1.0, 2.0, 500, dtype=dtype)).sum().backward()
-        grads.append((f.detach(), v.grad))
-    assert torch.equal(grads[0][0], grads[1][0])
-    tol = dict(rtol=1e-5, atol=1e-5) if dtype == torch.float32 else dict(rtol=1e-12, atol=1e-12)
-    torch.testing.assert_close(grads[0][1], grads[1][1], **tol)
 
 
 # ---------------------------------------------------------------------------- thread pool

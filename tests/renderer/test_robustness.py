@@ -7,7 +7,7 @@ import torch
 
 import importlib
 
-render_module = importlib.import_module("renderer.render")
+shading_module = importlib.import_module("renderer.shading")
 from renderer import Cameras, SDFGrid, Scene, TraceSettings, render
 
 from .analytic import sphere_sdf, torus_sdf
@@ -186,9 +186,10 @@ def test_silhouette_only_builds_no_hit_points_normals_or_lights(monkeypatch):
             return fn(*a, **k)
         return wrapper
 
-    monkeypatch.setattr(render_module, "hit_points_conservative", counting("hit", render_module.hit_points_conservative))
-    monkeypatch.setattr(render_module, "surface_normals", counting("normal", render_module.surface_normals))
-    monkeypatch.setattr(render_module, "shade_lambert", counting("light", render_module.shade_lambert))
+    monkeypatch.setattr(shading_module, "hit_points_conservative",
+                        counting("hit", shading_module.hit_points_conservative))
+    monkeypatch.setattr(shading_module, "surface_normals", counting("normal", shading_module.surface_normals))
+    monkeypatch.setattr(shading_module, "shade_lambert", counting("light", shading_module.shade_lambert))
     grid = SDFGrid.from_function(sphere_sdf(0.5), 16)
     cams = Cameras.look_at([[0.0, 0.0, 3.0]], image_size=16)
     out = render(grid, cams, Scene(effects=("silhouette",)), backend="reference")

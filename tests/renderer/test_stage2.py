@@ -1,4 +1,4 @@
-"""The fused stage 2 (renderer/stage2.py, kernels in renderer/kernels/raymarch.py) against the
+"""The fused stage 2 (renderer/fused.py, kernels in renderer/kernels/raymarch.py) against the
 PyTorch stage 2 (renderer/shading.py), its specification: the same outputs and the same gradients
 for every effect, light and case of the march tests, in float32 and float64, on the same traces.
 The CUDA kernels are checked in numba's CUDA simulator and by compiling them to PTX."""
@@ -12,13 +12,13 @@ import sys
 import pytest
 import torch
 
-from renderer import (Cameras, DirectionalLight, PointLight, SDFGrid, Scene, TraceSettings, kernels, render,
-                      shade_trace, sphere_trace)
+from renderer import (Cameras, DirectionalLight, PointLight, SDFGrid, Scene, TraceSettings, backends, fused,
+                      kernels, render, shade_trace, sphere_trace)
 
 from .analytic import sphere_sdf, torus_sdf
 from .test_kernels import CASES, DTYPES, ROOT, device_less_cuda, random_smooth_values
 
-pytestmark = pytest.mark.skipif(not kernels.available("cpu")[0], reason="numba is unavailable")
+pytestmark = pytest.mark.skipif(not backends.march_available("cpu")[0], reason="numba is unavailable")
 
 LIGHTS = (DirectionalLight((0.3, 1.0, 0.8), 0.7), PointLight((1.0, 2.0, 2.0), 2.0),
           PointLight((-2.0, 0.5, 1.0), 0.6, falloff=False), DirectionalLight((-1.0, -0.2, 0.4), 0.3))
@@ -104,11 +104,9 @@ def test_gradient_of_one_output_only():
 def test_render_uses_the_fused_stage2_after_a_fused_march(monkeypatch):
     """render(backend="cpu") and the default run the fused stage 2; the reference backend, and the
     exact intersection, the PyTorch one."""
-    import renderer.stage2 as stage2
-
     calls = []
-    real = stage2._FusedStage2.apply
-    monkeypatch.setattr(stage2._FusedStage2, "apply", lambda *a: calls.append(1) or real(*a))
+    real = fused._FusedStage2.apply
+    monkeypatch.setattr(fused._FusedStage2, "apply", lambda *a: calls.append(1) or real(*a))
     grid = SDFGrid.from_function(sphere_sdf(0.5), 12)
     cams = Cameras.look_at([[0.0, 0.3, 2.5]], fov_deg=40, image_size=8)
     render(grid, cams, backend="cpu")
@@ -130,12 +128,13 @@ def test_only_the_effects_the_scene_asks_for_run(monkeypatch):
     seen = []
     real = kernels.shade_forward
 
-    def spy(backend, values, params, iparams, sparams, sflags, lights, rays, outputs):
-        seen.append((sflags.clone(), {k: v.shape[0] for k, v in outputs.items()}))
-        real(backend, values, params, iparams, sparams, sflags, lights, rays, outputs)
+    def spy(backend, values, params, iparams, sparams, sflags, lights, rays, *outputs):
+        seen.append((sflags.clone(), dict(zip(("depth", "normal", "image", "silhouette"),
+                                              (o.shape[0] for o in outputs)))))
+        real(backend, values, params, iparams, sparams, sflags, lights, rays, *outputs)
 
     monkeypatch.setattr(kernels, "shade_forward", spy)
-    m = kernels._load_march()
+    m = kernels.load()
     grid = SDFGrid.from_function(sphere_sdf(0.5), 12)
     cams = Cameras.look_at([[0.0, 0.3, 2.5]], fov_deg=40, image_size=8)
     out = render(grid, cams, Scene(effects=("silhouette",)), backend="cpu")
@@ -183,8 +182,9 @@ SIMULATOR_SCRIPT = r"""
 import json, numpy as np, torch
 from renderer import Cameras, SDFGrid, Scene, DirectionalLight, PointLight, sphere_trace
 from renderer import kernels
+from renderer.fused import shade_fused
 from renderer.kernels import raymarch
-from renderer.stage2 import shade_trace_fused
+from renderer.stage2 import shading_rays
 from tests.renderer.analytic import torus_sdf
 
 grid = SDFGrid.from_function(torus_sdf, 12, dtype=torch.float64)
@@ -192,9 +192,11 @@ cams = Cameras.look_at([[0.5, 1.0, 2.5], [2.0, 0.3, -1.0]], fov_deg=50, image_si
 scene = Scene(lights=(DirectionalLight((0.3, 1.0, 0.8), 0.7), PointLight((1.0, 2.0, 2.0), 2.0)), camera_light=0.5,
               albedo=(0.9, 0.5))
 trace = sphere_trace(grid, cams, backend="reference")
+rays = shading_rays(trace, cams, grid.dtype, grid.device)
 # The CPU path (plain Python here: the JIT is off) gives the expected values and gradient.
 values = grid.values.clone().requires_grad_(True)
-d, n, s, im = shade_trace_fused(SDFGrid(values), cams, trace, scene, "cpu")
+out = shade_fused("cpu", SDFGrid(values), rays, scene)
+d, n, s, im = out.depth, out.normal, out.silhouette, out.image
 (d.sum() + (n * 0.3).sum() + s.sum() + (im * 0.7).sum()).backward()
 # The same through the CUDA kernel bodies, launched in the simulator on numpy arrays.
 m = raymarch
@@ -204,25 +206,25 @@ def fwd(backend, *a):
     captured["f"] = a
     return real_f("cpu", *a)
 kernels.shade_forward = fwd
-shade_trace_fused(SDFGrid(grid.values), cams, trace, scene, "cpu")
-values_, params, iparams, sparams, sflags, lights, rays, outputs = captured["f"]
+shade_fused("cpu", SDFGrid(grid.values), rays, scene)
+values_, params, iparams, sparams, sflags, lights, rays_, *outputs = captured["f"]
 forward, backward = m.make_cuda_shade_kernels()
-r = rays["hit"].shape[0]
-outs = {k: np.zeros_like(v.numpy()) for k, v in outputs.items()}
+r = rays_.count
+outs = {k: np.zeros_like(v.numpy()) for k, v in zip(("depth", "normal", "image", "silhouette"), outputs)}
 arr = lambda x: x.numpy()
 common = [arr(values_), arr(params), arr(iparams), arr(sparams), arr(sflags), arr(lights)]
-forward[(r + 31) // 32, 32](*common, arr(rays["hit"]), arr(rays["t"]), arr(rays["points"]), arr(rays["directions"]),
-                           arr(rays["extreme"]), arr(rays["t_extreme"]), arr(rays["steps"]), arr(rays["cam_grid"]),
-                           arr(rays["pixel_angle"]), arr(rays["eyes"]), outs["depth"], outs["normal"], outs["image"],
-                           outs["silhouette"])
+forward[(r + 31) // 32, 32](*common, arr(rays_.hit.view(torch.uint8)), arr(rays_.t), arr(rays_.points),
+                           arr(rays_.directions), arr(rays_.extreme), arr(rays_.t_extreme), arr(rays_.steps),
+                           arr(rays_.camera_grid), arr(rays_.pixel_angle), arr(rays_.eyes), outs["depth"],
+                           outs["normal"], outs["image"], outs["silhouette"])
 flags = sflags.numpy().copy()
 flags[m.SF_GRAD_DEPTH] = flags[m.SF_GRAD_NORMAL] = flags[m.SF_GRAD_IMAGE] = flags[m.SF_GRAD_SILHOUETTE] = 1
 grad = np.zeros_like(values_.numpy())
 ones = lambda k, c: np.full((r,) if c is None else (r, c), 1.0)
 backward[(r + 31) // 32, 32](arr(values_), arr(params), arr(iparams), arr(sparams), flags, arr(lights),
-                            arr(rays["hit"]), arr(rays["points"]), arr(rays["directions"]), arr(rays["extreme"]),
-                            arr(rays["t_extreme"]), arr(rays["steps"]), arr(rays["cam_grid"]),
-                            arr(rays["pixel_angle"]), arr(rays["eyes"]), ones("d", None), ones("n", 3) * 0.3,
+                            arr(rays_.hit.view(torch.uint8)), arr(rays_.points), arr(rays_.directions),
+                            arr(rays_.extreme), arr(rays_.t_extreme), arr(rays_.steps), arr(rays_.camera_grid),
+                            arr(rays_.pixel_angle), arr(rays_.eyes), ones("d", None), ones("n", 3) * 0.3,
                             ones("i", 2) * 0.7, ones("s", None), outs["silhouette"], grad)
 print(json.dumps({
     "hits": int(trace.hit.sum()),
@@ -279,10 +281,8 @@ def test_cuda_stage2_kernels_compile_to_ptx(dtype, monkeypatch):
 def test_without_the_fused_stage2_the_render_warns_and_uses_the_pytorch_one(monkeypatch, caplog):
     """Where the stage-2 kernels cannot run (on a GPU: a numba-cuda that cannot build them), a
     fused march is followed by the PyTorch stage 2, with one warning (also logged)."""
-    import renderer.trace as trace_module
-
-    monkeypatch.setattr(kernels, "stage2_available", lambda backend: (False, "testing the stage-2 fallback"))
-    monkeypatch.setattr(trace_module, "_warned", set())
+    monkeypatch.setattr(backends, "stage2_available", lambda backend: (False, "testing the stage-2 fallback"))
+    monkeypatch.setattr(backends, "_warned", set())
     grid = SDFGrid.from_function(sphere_sdf(0.5), 12, dtype=torch.float64)
     cams = Cameras.look_at([[0.0, 0.3, 2.5]], fov_deg=40, image_size=8, dtype=torch.float64)
     with pytest.warns(RuntimeWarning, match="testing the stage-2 fallback"), \
