@@ -21,7 +21,7 @@ $(VENV)/.installed: pyproject.toml Makefile
 ifeq ($(HAS_GPU),1)
 	$(PIP) install "torch>=2.4"
 	$(PIP) install -e ".[dev,$(CUDA_EXTRA)]"
-	$(PY) -c 'import sys; from renderer import kernels; ok, why = kernels.stage2_available("cuda"); print("fused CUDA kernels: ready" if ok else "WARNING: the fused CUDA kernels do not run here (" + why + "); renders on the GPU will use the slow PyTorch reference", file=sys.stderr)'
+	$(PY) -c 'import sys, renderer; ok, why = renderer.stage2_available("cuda"); print("fused CUDA kernels: ready" if ok else "WARNING: the fused CUDA kernels do not run here (" + why + "); renders on the GPU will use the slow PyTorch reference", file=sys.stderr)'
 else
 	$(PIP) install $(TORCH_CPU)
 	$(PIP) install -e ".[dev]"

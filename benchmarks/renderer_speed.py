@@ -407,7 +407,7 @@ def main(argv: list[str] | None = None) -> None:
             "- f+b: a render with the default Scene plus `backward()` into the grid values: reference = "
             "`render(backend=\"reference\")` (PyTorch march and stage 2), fused march + PyTorch stage 2 = "
             "the fused march with `shade_trace(stage2=\"reference\")` (the pipeline before stage 2 was "
-            "fused), fused = `render()` with both stages fused (renderer/stage2.py), the default.\n"
+            "fused), fused = `render()` with both stages fused (renderer/fused.py), the default.\n"
             f"- peak mem: the peak extra resident memory of one forward + backward in a fresh process "
             f"({method}; see the script's docstring).\n"
         )
