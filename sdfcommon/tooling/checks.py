@@ -103,11 +103,12 @@ def _shape_matches(shape: tuple[int, ...], pattern: str, at_least: Mapping[str, 
     """The sizes the letters of ``pattern`` ("B, N, N, N", "..., R, R, R", "V, 3") take in
     ``shape``, or None when it does not fit (a letter is one size wherever it appears)."""
     dims = [d.strip() for d in pattern.split(",") if d.strip()]
-    if dims and dims[0] == "...":
-        dims = dims[1:]
+    if dims and "..." in (dims[0], dims[-1]):
+        leading = dims[0] == "..."
+        dims = dims[1:] if leading else dims[:-1]
         if len(shape) < len(dims):
             return None
-        shape = shape[len(shape) - len(dims):]
+        shape = shape[len(shape) - len(dims):] if leading else shape[:len(dims)]
     elif len(shape) != len(dims):
         return None
     sizes: dict[str, int] = {}
@@ -123,8 +124,8 @@ def _shape_matches(shape: tuple[int, ...], pattern: str, at_least: Mapping[str, 
 def check_shape(value: Any, name: str, *shapes: str, at_least: Optional[Mapping[str, int]] = None) -> dict[str, int]:
     """The sizes of ``value``'s shape (a numpy array, a torch tensor: anything with ``.shape``) by
     the letters of the first of ``shapes`` it fits, e.g. ``check_shape(sdf, "sdf", "B, N, N, N",
-    at_least={"N": 3})`` -> ``{"B": 2, "N": 16}``. Numbers are fixed sizes, a leading ``...`` takes
-    any leading axes, ``at_least`` gives the smallest size of a letter.
+    at_least={"N": 3})`` -> ``{"B": 2, "N": 16}``. Numbers are fixed sizes, a leading (or trailing)
+    ``...`` takes any leading (trailing) axes, ``at_least`` gives the smallest size of a letter.
 
     Raises:
         TypeError: ``"<name> must be an array or tensor, got <type>"`` (no shape).

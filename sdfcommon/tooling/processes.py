@@ -8,6 +8,8 @@ gives each worker two guards: on Linux the kernel sends it SIGKILL when the pare
 """
 from __future__ import annotations
 
+import ctypes
+import multiprocessing
 import os
 import signal
 import sys
@@ -25,8 +27,6 @@ def die_with_parent(parent_pid: int) -> None:
     Safe to call where prctl does not exist (the watchdog thread still runs).
     """
     if sys.platform.startswith("linux"):
-        import ctypes
-
         try:
             ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL))
         except (OSError, AttributeError):
@@ -47,8 +47,6 @@ def process_pool(workers: int, initializer: Optional[Callable[..., None]] = None
                  initargs: tuple = ()) -> ProcessPoolExecutor:
     """A pool of ``workers`` spawned processes (no fork of a parent holding threads and CUDA) that
     die with this process (``die_with_parent``), each then running ``initializer(*initargs)``."""
-    import multiprocessing
-
     return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_start_worker, initargs=(os.getpid(), initializer, tuple(initargs)))
 

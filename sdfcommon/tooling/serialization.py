@@ -48,7 +48,7 @@ def load_torch(path: Union[str, os.PathLike], map_location: Any = "cpu", what: s
         FileNotFoundError naming the file; ValueError naming the file when it is a folder,
         truncated, corrupt or holds anything but plain values.
     """
-    import torch
+    import torch  # heavy: this module stays light for the commands that load no tensors
 
     p = Path(path)
     if p.is_dir():
