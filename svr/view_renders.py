@@ -12,8 +12,8 @@ from typing import Optional, Sequence
 import torch
 
 import renderer
-from sdfcommon.tooling.checks import check_int
 from sdfcommon.numerics.regularisers import check_grid
+from sdfcommon.tooling.checks import check_int, check_shape
 
 from svr.data.nmr import check_view_ids
 
@@ -44,8 +44,7 @@ def render_views(
         (None unless the scene shades).
     """
     check_grid(sdf)
-    if view_ids.ndim != 2 or view_ids.shape[0] != sdf.shape[0]:
-        raise ValueError(f"view_ids must have shape (B={sdf.shape[0]}, V), got {tuple(view_ids.shape)}")
+    check_shape(view_ids, "view_ids", f"{sdf.shape[0]}, V")
     check_int(image_size, "image_size", minimum=1)
     b, v = view_ids.shape
     grid = renderer.SDFGrid(sdf, -float(half_side), float(half_side))

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 import renderer
+from sdfcommon.tooling.checks import check_shape
 
 # The parallel kernels below share numba's process-wide thread pool with the renderer's march,
 # which must start it itself (its layer cannot change later; renderer.start_cpu_thread_pool says why).
@@ -69,12 +70,11 @@ class CSGShape:
 
     def __post_init__(self) -> None:
         prog = np.ascontiguousarray(np.asarray(self.program, dtype=np.float64))
-        if prog.ndim != 2 or prog.shape[1] != ROW or prog.shape[0] < 1:
-            raise ValueError(f"program must have shape (P >= 1, {ROW}), got {prog.shape}")
+        check_shape(prog, "program", f"P, {ROW}", at_least={"P": 1})
         if not np.isfinite(prog).all():
             raise ValueError("program contains NaN or Inf")
-        if not self.scale > 0:
-            raise ValueError(f"scale must be positive, got {self.scale}")
+        if not self.scale > 0:  # inf is allowed: a shape may be any size
+            raise ValueError(f"scale must be > 0, got {self.scale!r}")
         prog = prog.copy()
         for row in prog:
             row[19] = float(np.linalg.norm(_local_half_extents(int(row[0]), row[_P])))
