@@ -26,6 +26,7 @@ import trimesh
 
 from renderer import Cameras, Scene, shade_lambert
 from sdfcommon.numerics.meshing import sdf_to_mesh
+from sdfcommon.tooling.checks import check_int, check_positive
 
 from .raycast import EmbreeCaster, TriangleGrid, mesh_caster
 from .shapes import SHAPES
@@ -154,8 +155,7 @@ def shape_mesh(name: str, resolution: int = 192) -> trimesh.Trimesh:
     Newton steps of the implicit function."""
     if name not in SHAPES:
         raise ValueError(f"unknown shape {name!r}; built-in shapes: {', '.join(SHAPES)}")
-    if not isinstance(resolution, int) or resolution < 16:
-        raise ValueError(f"resolution must be an int >= 16, got {resolution!r}")
+    check_int(resolution, "resolution", minimum=16)
     shape = SHAPES[name]
     lo = np.array(shape.bounds_min, dtype=np.float64)
     hi = np.array(shape.bounds_max, dtype=np.float64)
@@ -180,8 +180,7 @@ def shape_mesh(name: str, resolution: int = 192) -> trimesh.Trimesh:
 def normalise_mesh(mesh: trimesh.Trimesh, extent: float) -> tuple[trimesh.Trimesh, float]:
     """A copy of ``mesh`` centred on the origin (bounding-box centre) with its longest bbox side
     equal to ``extent``; also returns the scale factor applied."""
-    if not extent > 0:
-        raise ValueError(f"extent must be positive, got {extent!r}")
+    check_positive(extent, "extent")
     lo, hi = mesh.bounds
     side = float((hi - lo).max())
     if not side > 0:
