@@ -33,7 +33,7 @@ import renderer
 from benchmarks import accuracy_vs_time_mvr, accuracy_vs_time_renderer, accuracy_vs_time_svr
 from benchmarks.accuracy_vs_time_svr import parse_steps
 from benchmarks.report import atomic_write_text, load_average, machine_info, progress_log, timed
-from mvr import configure_runtime
+import mvr
 
 ROOT = Path(__file__).resolve().parents[1]
 PARTS = ("renderer", "mvr", "svr")
@@ -170,7 +170,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         print(f"wrote {write_report(docs, work)}")
         return
 
-    configure_runtime(threads=args.threads)
+    mvr.configure_runtime(threads=args.threads)
     path = run_parts(parts, docs, work, args.quick, not args.no_cuda, svr_steps)
     print(f"wrote {path}")
 

@@ -37,7 +37,8 @@ import numpy as np
 import trimesh
 
 from benchmarks.report import load_average, machine_info, run_mvr
-from mvr import MESH_FORMATS, SHAPES, configure_runtime
+import mvr
+from mvr import MESH_FORMATS, SHAPES
 from mvr.__main__ import compose_config, reconstruct_kwargs
 from mvr.error_map import error_picture
 from mvr.metrics import one_sided_distances
@@ -335,7 +336,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         sys.exit(f"mvr_real_scans: error: {exc}")
     meshes += [PreparedMesh(s, s) for s in args.shapes]
     threads = config_value(compose_config(["target=unused"]), "runtime.threads")
-    configure_runtime(threads=threads)  # configs/mvr.yaml's runtime, as the command sets it
+    mvr.configure_runtime(threads=threads)  # configs/mvr.yaml's runtime, as the command sets it
     command = "python -m benchmarks.mvr_real_scans " + " ".join(sys.argv[1:] if argv is None else argv)
     rows = []
     for mesh in meshes:
