@@ -1,15 +1,12 @@
-"""The single-view part of the accuracy-versus-time study: validation IoU against training time
-for the model width, the refiner (on/off) and the number of supervised views per object.
-
-Each run is ``svr.training.stages.train`` on configs/train.yaml with hydra overrides: a small procedural
-dataset (generated once into ``<work>/svr_cache``), a fixed step budget (the coarse stage, then
-the refine stage; the joint stage is left out), and the setting varied. One run gives two points:
-after its coarse stage (refiner off: ``stage.schedule=[coarse]`` trains exactly that stage) and
-after its refine stage (refiner on). A callback (``StudyClock``) logs each validation's IoU and
-the time spent, so the training time excludes validation and the plot shows each run's IoU
-over time.
-
-Run by ``python -m benchmarks.accuracy_vs_time --parts svr`` (``--docs DIR`` to keep docs/ as it is).
+"""The single-view part of the accuracy-versus-time study: validation IoU against training time for
+the model width, the refiner (on/off) and the number of supervised views per object. Each run is
+``svr.training.stages.train`` on configs/train.yaml with hydra overrides: a small procedural dataset
+(generated once into ``<work>/svr_cache``), a fixed step budget (the coarse stage, then the refine
+stage; the joint stage is left out), and the setting varied. One run gives two points: after its
+coarse stage (refiner off: ``stage.schedule=[coarse]`` trains exactly that stage) and after its
+refine stage (refiner on). A callback (``StudyClock``) logs each validation's IoU and the time
+spent, so the training time excludes validation and the plot shows each run's IoU over time. Run by
+``python -m benchmarks.accuracy_vs_time --parts svr`` (``--docs DIR`` to keep docs/ as it is).
 """
 from __future__ import annotations
 

@@ -1,10 +1,9 @@
-"""One level of multi-view reconstruction: Adam on the grid values with greedy view selection.
-
-Paper section 5.2 (and SPEC section 2): each pass first computes every view's loss; a view whose
-loss is above the mean gets up to ``hard_view_updates`` (20) updates, stopping once its loss is
-below the mean; the others get ``easy_view_updates`` (5); an update that raises the view's loss
-moves on to the next view. A level stops when its loss is below a tolerance, when a pass moves no
-grid value by more than a tiny step, when the loss stops improving, or at a pass or time limit.
+"""One level of multi-view reconstruction: Adam on the grid values with greedy view selection. Paper
+section 5.2 (and SPEC section 2): each pass first computes every view's loss; a view whose loss is
+above the mean gets up to ``hard_view_updates`` (20) updates, stopping once its loss is below the
+mean; the others get ``easy_view_updates`` (5); an update that raises the view's loss moves on to
+the next view. A level stops when its loss is below a tolerance, when a pass moves no grid value by
+more than a tiny step, when the loss stops improving, or at a pass or time limit.
 """
 from __future__ import annotations
 

@@ -1,18 +1,15 @@
-"""Reconstruction targets: a watertight mesh, normalised into the grid's box, and its images.
-
-A target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a built-in shape of
+"""Reconstruction targets: a watertight mesh, normalised into the grid's box, and its images. A
+target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a built-in shape of
 ``mvr.shapes`` (meshed finely by marching cubes). Either way it is centred on the origin and scaled
-so that the longest side of its bounding box is ``extent`` (world units).
-
-The target images come from the mesh itself: rays through the pixel centres of our cameras are cast
-against its triangles (``mvr.raycast.mesh_caster``: Embree where it installs) and the hits are
-shaded by ``renderer.shade_lambert`` with the same scene (lights, ambient, albedo, background) the
-optimiser renders with. The optimiser never sees an image made by its own renderer.
-
-Normals for the shading: ``"smooth"`` (default) interpolates the mesh's vertex normals with the
-barycentric weights of the hit, the right choice for meshes that approximate smooth surfaces (our
-renderer's normals are themselves smooth: interpolated finite differences); ``"face"`` uses each
-triangle's own normal, right for meshes with sharp, flat facets.
+so that the longest side of its bounding box is ``extent`` (world units). The target images come
+from the mesh itself: rays through the pixel centres of our cameras are cast against its triangles
+(``mvr.raycast.mesh_caster``: Embree where it installs) and the hits are shaded by
+``renderer.shade_lambert`` with the same scene (lights, ambient, albedo, background) the optimiser
+renders with. The optimiser never sees an image made by its own renderer. Normals for the shading:
+``"smooth"`` (default) interpolates the mesh's vertex normals with the barycentric weights of the
+hit, the right choice for meshes that approximate smooth surfaces (our renderer's normals are
+themselves smooth: interpolated finite differences); ``"face"`` uses each triangle's own normal,
+right for meshes with sharp, flat facets.
 """
 from __future__ import annotations
 

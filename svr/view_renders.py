@@ -1,9 +1,8 @@
-"""Predicted SDF grids rendered from NMR views: prediction -> renders.
-
-One function, ``render_views``, renders B grids each from its own V NMR views (``renderer.Cameras.nmr``)
-with a scene whose effects decide which passes run. Training's image loss uses it with gradients
-and the dataset's scene; ``render_previews`` is the same call without gradients and with a neutral
-grey preview scene, for the pictures of inference and the demo.
+"""Predicted SDF grids rendered from NMR views: prediction -> renders. One function,
+``render_views``, renders B grids each from its own V NMR views (``renderer.Cameras.nmr``) with a
+scene whose effects decide which passes run. Training's image loss uses it with gradients and the
+dataset's scene; ``render_previews`` is the same call without gradients and with a neutral grey
+preview scene, for the pictures of inference and the demo.
 """
 from __future__ import annotations
 

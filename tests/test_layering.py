@@ -1,10 +1,10 @@
-"""Imports flow one way (HOUSE_STYLE.md, Boundaries): renderer <- sdfcommon <- svr, mvr <- benchmarks.
-
-Every .py file of the packages is parsed (imports at any depth, inside functions too), the package
-import graph is built and printed (``pytest -s tests/test_layering.py`` shows it), and the test fails
-when a package imports one above it or beside it, when two packages import each other, when code
-outside ``renderer/`` reaches into a renderer submodule instead of the renderer's public API, or when
-files of one package import each other in a cycle (the file graph, searched by Tarjan's algorithm).
+"""Imports flow one way (HOUSE_STYLE.md, Boundaries): renderer <- sdfcommon <- svr, mvr <-
+benchmarks. Every .py file of the packages is parsed (imports at any depth, inside functions too),
+the package import graph is built and printed (``pytest -s tests/test_layering.py`` shows it), and
+the test fails when a package imports one above it or beside it, when two packages import each
+other, when code outside ``renderer/`` reaches into a renderer submodule instead of the renderer's
+public API, or when files of one package import each other in a cycle (the file graph, searched by
+Tarjan's algorithm).
 """
 from __future__ import annotations
 

@@ -1,10 +1,9 @@
-"""Worker processes that die with their parent.
-
-A ``ProcessPoolExecutor``'s workers outlive a parent killed by SIGTERM or SIGKILL: they wait on
-their call queue forever (seen: evaluation workers left running, holding their memory). ``process_pool``
-gives each worker two guards: on Linux the kernel sends it SIGKILL when the parent dies
-(``prctl(PR_SET_PDEATHSIG)``), and everywhere a daemon thread ends it once its parent is gone
-(its parent process id changes), checked every ``PARENT_POLL_S`` seconds.
+"""Worker processes that die with their parent. A ``ProcessPoolExecutor``'s workers outlive a parent
+killed by SIGTERM or SIGKILL: they wait on their call queue forever (seen: evaluation workers left
+running, holding their memory). ``process_pool`` gives each worker two guards: on Linux the kernel
+sends it SIGKILL when the parent dies (``prctl(PR_SET_PDEATHSIG)``), and everywhere a daemon thread
+ends it once its parent is gone (its parent process id changes), checked every ``PARENT_POLL_S``
+seconds.
 """
 from __future__ import annotations
 

@@ -1,5 +1,4 @@
 """Reading PyTorch files safely: tensors and plain values only, errors that name the file.
-
 ``torch.load(weights_only=True)`` refuses a file that would run code; its message then advises
 re-running with ``weights_only=False``, which runs whatever the file names. Our messages never pass
 that advice on (``load_error_reason``).

@@ -1,28 +1,24 @@
 """Lightning DataModules yielding ``SVRBatch`` from NMR-format folders (NMR ShapeNet or procedural).
-
 Training (SPEC section 5): each batch element is a random object, then ``views_per_sample`` (V = 2)
-distinct random views of it; view 0 is the network's input, all V supervise. The draws happen in
-the main process (``ObjectViewSampler``, seeded by ``seed`` and the epoch), so they do not depend on
-the number of workers.
-
-Evaluation (val and test): deterministic, one item per (object, view) in the order category,
-object, view, with V = 1: ``batch.images`` is (B, 1, 4, 64, 64), ``batch.view_ids`` (B, 1). The test
-loader covers all 24 views of every test object (the benchmark counts each view as one
-prediction); the validation loader can be thinned with ``val_views`` / ``val_objects_per_category``.
-
-Workers: the datasets hold no arrays when pickled; each worker opens the prepared ``.npy`` files
-memory-mapped, so the page cache holds one copy whatever ``num_workers``.
-
-Several processes (DDP, ``trainer=ddp``): the samplers are rank-aware. Training: every rank draws the
-same stream of an epoch (seeded by ``seed`` and the epoch) and takes every world-size-th key of it,
-so the ranks see disjoint parts of one stream, and together the keys a single process with a
-world-size-times larger batch would see (``samples_per_epoch`` counts all ranks together; the last
-``samples_per_epoch mod world size`` keys are dropped so that every rank runs the same number of
-steps). Evaluation: each rank takes one contiguous block of the (object, view) items, padded by
-wrapping around so that all ranks run the same number of batches (DDP's forward pass is a
-collective); ``SVRLightningModule`` gathers the per-image IoU and counts each image once. The
-processes of a node share the memory-mapped arrays as they share them between workers: the page
-cache holds one copy whatever the number of processes (tests/svr/test_distributed.py measures it).
+distinct random views of it; view 0 is the network's input, all V supervise. The draws happen in the
+main process (``ObjectViewSampler``, seeded by ``seed`` and the epoch), so they do not depend on the
+number of workers. Evaluation (val and test): deterministic, one item per (object, view) in the
+order category, object, view, with V = 1: ``batch.images`` is (B, 1, 4, 64, 64), ``batch.view_ids``
+(B, 1). The test loader covers all 24 views of every test object (the benchmark counts each view as
+one prediction); the validation loader can be thinned with ``val_views`` /
+``val_objects_per_category``. Workers: the datasets hold no arrays when pickled; each worker opens
+the prepared ``.npy`` files memory-mapped, so the page cache holds one copy whatever
+``num_workers``. Several processes (DDP, ``trainer=ddp``): the samplers are rank-aware. Training:
+every rank draws the same stream of an epoch (seeded by ``seed`` and the epoch) and takes every
+world-size-th key of it, so the ranks see disjoint parts of one stream, and together the keys a
+single process with a world-size-times larger batch would see (``samples_per_epoch`` counts all
+ranks together; the last ``samples_per_epoch mod world size`` keys are dropped so that every rank
+runs the same number of steps). Evaluation: each rank takes one contiguous block of the (object,
+view) items, padded by wrapping around so that all ranks run the same number of batches (DDP's
+forward pass is a collective); ``SVRLightningModule`` gathers the per-image IoU and counts each
+image once. The processes of a node share the memory-mapped arrays as they share them between
+workers: the page cache holds one copy whatever the number of processes
+(tests/svr/test_distributed.py measures it).
 """
 from __future__ import annotations
 

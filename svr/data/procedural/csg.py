@@ -1,17 +1,13 @@
-"""Analytic signed distance functions of CSG shapes: a small program of primitives and set operations.
-
-A shape is a left-deep CSG program: ``d = prim_0``, then for each later row
-``d = op(d, prim_i)`` with op union (min), subtract (``max(d, -prim)``) or intersect (max). Every
-primitive is exact (its SDF is the Euclidean distance); the set operations keep a lower bound of the
-distance (outside the shape the value never exceeds the true distance), so sphere tracing with it
-never steps through the surface.
-
-Two evaluators of the same program: ``CSGShape.sdf`` in PyTorch (the reference, differentiable) and a
-numba kernel (``sdf_numpy``, ``trace_rays``, ``surface_normals``) for the renders of the procedural
-dataset; tests/svr/test_procedural.py checks that they agree.
-
-Frames: world coordinates, y up. ``CSGShape.scale`` and ``CSGShape.offset`` map the program's own
-frame to the world: ``sdf_world(p) = scale * sdf_program(p / scale + offset)``.
+"""Analytic signed distance functions of CSG shapes: a small program of primitives and set
+operations. A shape is a left-deep CSG program: ``d = prim_0``, then for each later row ``d = op(d,
+prim_i)`` with op union (min), subtract (``max(d, -prim)``) or intersect (max). Every primitive is
+exact (its SDF is the Euclidean distance); the set operations keep a lower bound of the distance
+(outside the shape the value never exceeds the true distance), so sphere tracing with it never steps
+through the surface. Two evaluators of the same program: ``CSGShape.sdf`` in PyTorch (the reference,
+differentiable) and a numba kernel (``sdf_numpy``, ``trace_rays``, ``surface_normals``) for the
+renders of the procedural dataset; tests/svr/test_procedural.py checks that they agree. Frames:
+world coordinates, y up. ``CSGShape.scale`` and ``CSGShape.offset`` map the program's own frame to
+the world: ``sdf_world(p) = scale * sdf_program(p / scale + offset)``.
 """
 from __future__ import annotations
 
