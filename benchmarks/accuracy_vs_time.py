@@ -29,7 +29,11 @@ import json
 from pathlib import Path
 from typing import Optional, Sequence
 
+import renderer
+from benchmarks import accuracy_vs_time_mvr, accuracy_vs_time_renderer, accuracy_vs_time_svr
+from benchmarks.accuracy_vs_time_svr import parse_steps
 from benchmarks.report import atomic_write_text, load_average, machine_info, progress_log, timed
+import mvr
 
 ROOT = Path(__file__).resolve().parents[1]
 PARTS = ("renderer", "mvr", "svr")
@@ -51,7 +55,6 @@ def renderer_devices(cuda: bool = True) -> tuple[str, ...]:
     """The renderer part's devices: the CPU, and CUDA where ``cuda`` and its fused kernel runs."""
     if not cuda:
         return ("cpu",)
-    import renderer
 
     return ("cpu", "cuda") if renderer.backend_available("cuda")[0] else ("cpu",)
 
@@ -60,17 +63,11 @@ def run_part(part: str, docs: Path, work: Path, quick: bool, cuda: bool, svr_ste
              progress: bool) -> str:
     """Runs one part; returns its markdown section (its plots are written into ``docs``)."""
     if part == "renderer":
-        from benchmarks import accuracy_vs_time_renderer
-
         return "\n".join(accuracy_vs_time_renderer.run(docs, quick=quick, device=d, progress=progress)
                          for d in renderer_devices(cuda))
     if part == "mvr":
-        from benchmarks import accuracy_vs_time_mvr
-
         return accuracy_vs_time_mvr.run(docs, work, quick=quick, progress=progress)
     if part == "svr":
-        from benchmarks import accuracy_vs_time_svr
-
         return accuracy_vs_time_svr.run(docs, work, quick=quick, steps=svr_steps, progress=progress)
     raise ValueError(f"part must be one of {PARTS}, got {part!r}")
 
@@ -163,7 +160,6 @@ def main(argv: Optional[list[str]] = None) -> None:
     args = ap.parse_args(argv)
     try:
         parts = parse_parts(args.parts)
-        from benchmarks.accuracy_vs_time_svr import parse_steps
 
         svr_steps = parse_steps(args.svr_steps)
     except ValueError as exc:
@@ -173,9 +169,8 @@ def main(argv: Optional[list[str]] = None) -> None:
     if args.report_only:
         print(f"wrote {write_report(docs, work)}")
         return
-    from mvr import configure_runtime
 
-    configure_runtime(threads=args.threads)
+    mvr.configure_runtime(threads=args.threads)
     path = run_parts(parts, docs, work, args.quick, not args.no_cuda, svr_steps)
     print(f"wrote {path}")
 

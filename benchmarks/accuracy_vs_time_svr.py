@@ -1,15 +1,12 @@
-"""The single-view part of the accuracy-versus-time study: validation IoU against training time
-for the model width, the refiner (on/off) and the number of supervised views per object.
-
-Each run is ``svr.training.stages.train`` on configs/train.yaml with hydra overrides: a small procedural
-dataset (generated once into ``<work>/svr_cache``), a fixed step budget (the coarse stage, then
-the refine stage; the joint stage is left out), and the setting varied. One run gives two points:
-after its coarse stage (refiner off: ``stage.schedule=[coarse]`` trains exactly that stage) and
-after its refine stage (refiner on). A callback (``StudyClock``) logs each validation's IoU and
-the time spent, so the training time excludes validation and the plot shows each run's IoU
-over time.
-
-Run by ``python -m benchmarks.accuracy_vs_time --parts svr`` (``--docs DIR`` to keep docs/ as it is).
+"""The single-view part of the accuracy-versus-time study: validation IoU against training time for
+the model width, the refiner (on/off) and the number of supervised views per object. Each run is
+``svr.training.stages.train`` on configs/train.yaml with hydra overrides: a small procedural dataset
+(generated once into ``<work>/svr_cache``), a fixed step budget (the coarse stage, then the refine
+stage; the joint stage is left out), and the setting varied. One run gives two points: after its
+coarse stage (refiner off: ``stage.schedule=[coarse]`` trains exactly that stage) and after its
+refine stage (refiner on). A callback (``StudyClock``) logs each validation's IoU and the time
+spent, so the training time excludes validation and the plot shows each run's IoU over time. Run by
+``python -m benchmarks.accuracy_vs_time --parts svr`` (``--docs DIR`` to keep docs/ as it is).
 """
 from __future__ import annotations
 
@@ -22,8 +19,11 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import pytorch_lightning as pl
+from hydra.utils import instantiate
 
 from benchmarks.report import Point, progress_log, timed, tradeoff_section
+from sdfcommon.tooling.commands import compose
+from svr.training.stages import train
 
 CATEGORIES = ("chair", "table", "airplane", "mug")
 QUICK_CATEGORIES = ("chair", "mug")
@@ -121,8 +121,6 @@ def run_overrides(run: Run, data: Sequence[str], steps: tuple[int, int], val_eve
 
 def compose_train(overrides: Sequence[str]):
     """configs/train.yaml composed with overrides, outside a hydra run."""
-    from sdfcommon.tooling.commands import compose
-
     return compose("train", overrides)
 
 
@@ -146,8 +144,6 @@ def measure(run: Run, work: Path, data: Sequence[str], steps: tuple[int, int], v
     """Trains one run afresh; a Point per stage (after coarse, after refine; seconds: training CPU
     seconds without validation; error: 1 - the stage's best validation IoU) and its curve of
     (training CPU seconds, 1 - IoU) at each validation."""
-    from svr.training.stages import train
-
     run_dir = work / "svr" / run.label.replace(" ", "_")
     if run_dir.exists():
         shutil.rmtree(run_dir)  # a fresh run: no resumed stage, no old timeline
@@ -187,8 +183,6 @@ def run(out_dir: Path, work: Path, quick: bool = False, steps: Optional[tuple[in
     Args:
         steps: (coarse, refine) steps per run; default (200, 100), or (2, 2) with ``quick``.
     """
-    from hydra.utils import instantiate
-
     steps = steps or ((2, 2) if quick else (200, 100))
     val_every = 2 if quick else 50
     log = progress_log(progress)

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from benchmarks.report import atomic_write_text, machine_info, run_mvr
+import mvr
 
 DEFAULT_SHAPES = ("torus", "double_torus", "blob", "rounded_box")
 PAPER = {"torus": 0.015637}
@@ -41,9 +42,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--docs", type=Path, default=Path("docs"))
     ap.add_argument("--extra", nargs="*", default=[], help="hydra overrides passed to every run")
     args = ap.parse_args(argv)
-    from mvr import configure_runtime
 
-    configure_runtime(threads=1)  # one thread, as docs/mvr_shapes.md was measured (the command: every core)
+    mvr.configure_runtime(threads=1)  # one thread, as docs/mvr_shapes.md was measured (the command: every core)
     rows = []
     for shape in args.shapes:
         t0 = time.perf_counter()

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Callable
 
 from benchmarks.report import Point, atomic_write_text, machine_info, markdown_table, plot_tradeoff, run_mvr
+import mvr
 
 
 @dataclass(frozen=True)
@@ -140,9 +141,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--work", type=Path, default=Path("outputs/mvr_study"), help="run folders (resumable)")
     ap.add_argument("--docs", type=Path, default=Path("docs"), help="where the tables and plots go")
     args = ap.parse_args(argv)
-    from mvr import configure_runtime
 
-    configure_runtime(threads=1)
+    mvr.configure_runtime(threads=1)
     for name in (studies if args.study == "all" else [args.study]):
         run_study(studies[name], args.target, args.work, args.docs, args.passes)
 

@@ -34,8 +34,18 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
+import trimesh
 
 from benchmarks.report import load_average, machine_info, run_mvr
+import mvr
+from mvr import MESH_FORMATS, SHAPES
+from mvr.__main__ import compose_config, reconstruct_kwargs
+from mvr.error_map import error_picture
+from mvr.metrics import one_sided_distances
+from mvr.reconstruct import default_scene
+from sdfcommon.tooling import outputs
+from sdfcommon.tooling.commands import config_value
+from sdfcommon.tooling.outputs import ensure_output_dir
 
 CONFIGS = {"default": (), "paper": ("mvr/preset=paper",)}
 # Paper section 5, symmetric Hausdorff relative to the bounding box (SPEC.md section 2).
@@ -65,8 +75,6 @@ def paper_value(name: str) -> Optional[float]:
 
 def boundary_edges(mesh) -> int:
     """Edges used by exactly one face (holes' rims)."""
-    import trimesh
-
     return int(len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)))
 
 
@@ -74,11 +82,6 @@ def prepare_meshes(folder: Path, names: Sequence[str], work: Path, max_hole_edge
     """The meshes of ``folder`` (all supported files, or those whose stem is in ``names``), each
     checked: watertight ones as they are; ones with at most ``max_hole_edges`` boundary edges closed
     by ``trimesh.repair.fill_holes`` into ``work/<stem>.ply``; the rest left out with the reason."""
-    import trimesh
-
-    from mvr import MESH_FORMATS
-    from sdfcommon.tooling import outputs
-
     if not folder.is_dir():
         raise ValueError(f"mesh folder {str(folder)!r} is not a folder")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_FORMATS and p.is_file())
@@ -125,10 +128,6 @@ def percentile_distance_rel(recon_file: Path, target_file: Path, samples: int = 
     """The ``q``-th percentile of the symmetric surface distance (both sides' samples pooled),
     divided by the target's bounding-box diagonal: how far the worst 1% lie, less sensitive to a
     single stray point than the Hausdorff distance."""
-    import trimesh
-
-    from mvr.metrics import one_sided_distances
-
     recon = trimesh.load(str(recon_file), force="mesh", process=False)
     target = trimesh.load(str(target_file), force="mesh", process=False)
     a, _ = trimesh.sample.sample_surface(recon, samples, seed=seed)
@@ -141,13 +140,6 @@ def percentile_distance_rel(recon_file: Path, target_file: Path, samples: int = 
 def write_error_picture(run_dir: Path, overrides: Sequence[str], error_scale: float, image_size: int = 320) -> Path:
     """``run_dir/errors.png`` from the run's mesh.ply and target.ply (``mvr.error_map``), seen by the
     rig of the run's configuration; red marks distances of ``error_scale`` bbox diagonals or more."""
-    import trimesh
-
-    from mvr.__main__ import compose_config, reconstruct_kwargs
-    from mvr.error_map import error_picture
-    from mvr.reconstruct import default_scene
-    from sdfcommon.tooling import outputs
-
     kw = reconstruct_kwargs(compose_config(["target=unused", "out_dir=unused", *overrides]))
     recon = trimesh.load(str(run_dir / "mesh.ply"), force="mesh", process=False)
     target = trimesh.load(str(run_dir / "target.ply"), force="mesh", process=False)
@@ -270,8 +262,6 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
                  goal: float, error_scale: float) -> None:
     """OUT/table.md, table.csv, results.json; and DOCS/mvr_real_scans.md with the default
     configuration's error pictures copied beside it."""
-    from sdfcommon.tooling import outputs
-
     table = markdown_table(rows, configs)
     outputs.write_csv(out / "table.csv", list(rows), COLUMNS)
     outputs.write_json(out / "results.json", {"command": command, "configs": {c: list(CONFIGS[c]) for c in configs},
@@ -330,10 +320,6 @@ def main(argv: Optional[list[str]] = None) -> None:
     ap.add_argument("--extra", nargs="*", default=[], help="hydra overrides for every run")
     ap.add_argument("--table-only", action="store_true", help="only rebuild the table from finished runs")
     args = ap.parse_args(argv)
-    from mvr import SHAPES, configure_runtime
-    from mvr.__main__ import compose_config
-    from sdfcommon.tooling.commands import config_value
-    from sdfcommon.tooling.outputs import ensure_output_dir
 
     try:
         unknown = [s for s in args.shapes if s not in SHAPES]
@@ -350,7 +336,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         sys.exit(f"mvr_real_scans: error: {exc}")
     meshes += [PreparedMesh(s, s) for s in args.shapes]
     threads = config_value(compose_config(["target=unused"]), "runtime.threads")
-    configure_runtime(threads=threads)  # configs/mvr.yaml's runtime, as the command sets it
+    mvr.configure_runtime(threads=threads)  # configs/mvr.yaml's runtime, as the command sets it
     command = "python -m benchmarks.mvr_real_scans " + " ".join(sys.argv[1:] if argv is None else argv)
     rows = []
     for mesh in meshes:

@@ -18,8 +18,13 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
+from hydra.utils import instantiate
 
 from benchmarks.report import atomic_write_text, machine_info
+from sdfcommon.tooling.commands import compose
+from svr.evaluation.baselines import BASELINES, LABELS, score_baselines
+from svr.evaluation.metrics import iou_table
+from svr.evaluation.tables import EvaluationResult
 
 ROOT = Path(__file__).resolve().parents[1]
 HALF_SIDE = 0.6        # configs/model/*.yaml: the SDF grid's box
@@ -40,13 +45,6 @@ def baseline_table(preset: str = "bench", split: str = "test", cache_dir: Option
     Returns:
         (markdown table, {baseline: {"categories": {name: iou}, "mean": iou}}).
     """
-    from hydra.utils import instantiate
-
-    from sdfcommon.tooling.commands import compose
-    from svr.evaluation.baselines import BASELINES, LABELS, score_baselines
-    from svr.evaluation.tables import EvaluationResult
-    from svr.evaluation.metrics import iou_table
-
     extra = [f"data.cache_dir={cache_dir}"] if cache_dir is not None else []
     cfg = compose("eval", [f"data={PRESETS[preset]}", f"data.progress={progress}", *extra, *overrides])
     dm = instantiate(cfg.data)  # the data module training uses: the same folder, generated if missing

@@ -6,9 +6,18 @@ import io
 import math
 import os
 import platform
+import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
+
+import numpy
+import torch
+
+from mvr import reconstruct
+from mvr.__main__ import compose_config, reconstruct_kwargs
+from sdfcommon.tooling.outputs import atomic_write, write_text
 
 
 @dataclass
@@ -38,8 +47,6 @@ def pareto_front(points: Sequence[Point]) -> list[bool]:
 
 def atomic_write_text(path: Path, text: str) -> None:
     """Writes UTF-8 text to ``path`` atomically (``sdfcommon.tooling.outputs.write_text``)."""
-    from sdfcommon.tooling.outputs import write_text
-
     write_text(path, text)
 
 
@@ -52,9 +59,6 @@ def run_mvr(target: str, out_dir: Path, overrides: Sequence[str] = ()) -> dict:
     Returns:
         the run's metrics (what it writes to ``<out_dir>/metrics.json``).
     """
-    from mvr import reconstruct
-    from mvr.__main__ import compose_config, reconstruct_kwargs
-
     cfg = compose_config([f"target={target}", f"out_dir={out_dir}", "progress=false", *overrides])
     return reconstruct(target, out_dir, **reconstruct_kwargs(cfg)).metrics
 
@@ -71,13 +75,11 @@ def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, 
         curves: optional thin lines behind the points, label -> [(seconds, error), ...] (e.g. a
             training run's validation error over time; its end is usually the run's point).
     """
-    from sdfcommon.tooling.outputs import atomic_write
-
-    import matplotlib
+    import matplotlib  # heavy: only the plots need it
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib import ticker
+    import matplotlib.pyplot as plt  # heavy: as above
+    from matplotlib import ticker  # heavy: as above
 
     front = pareto_front(points)
     fig, ax = plt.subplots(figsize=(6.0, 4.2), dpi=110)
@@ -235,7 +237,6 @@ def progress_log(enabled: bool, indent: str = "  ") -> Callable[[str], None]:
     """A function that prints a progress line to stderr (indented), or does nothing."""
     if not enabled:
         return lambda line: None
-    import sys
 
     return lambda line: print(f"{indent}{line}", file=sys.stderr, flush=True)
 
@@ -253,8 +254,6 @@ class Timed:
 
 def timed(fn: Callable[[], Any]) -> Timed:
     """Calls ``fn()`` once and measures it (see ``Timed``)."""
-    import time
-
     load0 = _load1()
     t0, c0 = time.perf_counter(), time.process_time()
     result = fn()
@@ -279,15 +278,12 @@ def load_average() -> str:
 
 def machine_info(extra: Optional[dict] = None) -> str:
     """A markdown list of the machine, library versions and the load average now."""
-    import numpy
-    import torch
-
     lines = [
         f"- machine: {platform.machine()}, {os.cpu_count()} CPU cores, {platform.platform()}",
         f"- python {platform.python_version()}, torch {torch.__version__}, numpy {numpy.__version__}",
     ]
     try:
-        import numba
+        import numba  # optional: the renderer runs without it
 
         lines.append(f"- numba {numba.__version__}")
     except ImportError:

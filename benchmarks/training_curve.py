@@ -16,6 +16,8 @@ import csv
 from pathlib import Path
 from typing import Optional
 
+from benchmarks.report import atomic_write_text
+
 STAGES = ("coarse", "refine", "joint")
 
 
@@ -71,10 +73,10 @@ def markdown(rows: list[dict], baselines: dict[str, float]) -> str:
 
 
 def plot(rows: list[dict], baselines: dict[str, float], path: Path, title: str) -> None:
-    import matplotlib
+    import matplotlib  # heavy: only the plot needs it
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: as above
 
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     for stage in STAGES:
@@ -120,7 +122,6 @@ def main(argv: Optional[list[str]] = None) -> None:
     baselines = dict(args.baseline)
     out = args.out or args.run_dir / "curve"
     out.parent.mkdir(parents=True, exist_ok=True)
-    from benchmarks.report import atomic_write_text
 
     text = markdown(rows, baselines)
     atomic_write_text(out.with_suffix(".md"), text + "\n")

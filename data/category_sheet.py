@@ -18,7 +18,10 @@ from typing import Optional, Sequence
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from sdfcommon.tooling.checks import check_int  # noqa: E402
+from sdfcommon.tooling.outputs import atomic_write  # noqa: E402
 from svr.data.procedural.categories import NMR_PROCEDURAL_CATEGORIES, make_shape, procedural_category  # noqa: E402
+from svr.data.procedural.generator import render_shape  # noqa: E402
 
 DEFAULT_OUT = REPO / "docs" / "procedural_categories.png"
 IMAGE_SIZE = 128
@@ -37,18 +40,13 @@ def category_sheet(out: str | Path = DEFAULT_OUT, categories: Optional[Sequence[
     Returns:
         the path written.
     """
-    import matplotlib
+    import matplotlib  # heavy: only the sheet needs it
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # heavy: as above
 
-    from sdfcommon.tooling.outputs import atomic_write
-    from svr.data.procedural.generator import render_shape
-
-    if not isinstance(per_category, int) or per_category < 1:
-        raise ValueError(f"per_category must be a positive int, got {per_category!r}")
-    if not isinstance(view, int) or not 0 <= view < 24:
-        raise ValueError(f"view must be an int in [0, 24), got {view!r}")
+    check_int(per_category, "per_category", minimum=1)
+    check_int(view, "view", 0, 23)
     cats = [procedural_category(c) for c in categories] if categories else list(NMR_PROCEDURAL_CATEGORIES)
     if not cats:
         raise ValueError("categories must name at least one category")

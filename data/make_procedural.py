@@ -21,6 +21,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from sdfcommon.tooling.checks import check_int  # noqa: E402
+from sdfcommon.tooling.commands import compose  # noqa: E402
 from svr.data.procedural.generator import (ALL_CATEGORIES, VOXEL_RULES, ProceduralSettings, default_workers,  # noqa: E402
                                  ensure_procedural_dataset, generate_procedural_dataset)
 
@@ -29,8 +31,6 @@ PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<n
 
 def preset_settings(name: str) -> dict:
     """The dataset settings of a data preset, as hydra composes ``data=<preset>`` for training."""
-    from sdfcommon.tooling.commands import compose
-
     cfg = compose("eval", [f"data={PRESETS[name]}"]).data
     return {"categories": cfg.categories or (), "train": cfg.train, "val": cfg.val, "test": cfg.test,
             "seed": cfg.data_seed, "supersample": cfg.supersample, "voxel_rule": cfg.voxel_rule}
@@ -67,8 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         values["categories"] = args.categories
     try:
         settings = ProceduralSettings(**{**values, "categories": tuple(values["categories"])})
-        if args.workers < 0:
-            raise ValueError(f"--workers must be >= 0, got {args.workers}")
+        check_int(args.workers, "--workers", minimum=0)
     except ValueError as err:
         print(f"make_procedural: error: {err}", file=sys.stderr)
         return 2

@@ -22,6 +22,8 @@ import torch
 import trimesh
 
 from renderer import Cameras, Scene, shade_lambert
+from sdfcommon.tooling.checks import check_positive
+from sdfcommon.tooling.pictures import labelled_grid
 
 from .metrics import one_sided_distances
 from .raycast import mesh_caster
@@ -47,8 +49,7 @@ class ErrorViews:
 def error_colours(distances: np.ndarray, vmax: float) -> np.ndarray:
     """The ramp's colour of each distance (any shape S): (S..., 3) float in [0, 1]; distances at or
     above ``vmax`` are red, 0 light grey."""
-    if not vmax > 0:
-        raise ValueError(f"vmax must be positive, got {vmax!r}")
+    vmax = check_positive(vmax, "vmax")
     x = np.clip(np.asarray(distances, dtype=np.float64) / vmax, 0.0, 1.0)
     return np.stack([np.interp(x, _RAMP[:, 0], _RAMP[:, c]) for c in (1, 2, 3)], axis=-1)
 
@@ -89,8 +90,6 @@ def error_picture(target: trimesh.Trimesh, recon: trimesh.Trimesh, cameras: Came
     """The two rows (target coloured by its distance to the reconstruction, reconstruction by its
     distance to the target) over the views, labelled: an (H', W', 3) float32 array
     (``sdfcommon.tooling.pictures.labelled_grid``)."""
-    from sdfcommon.tooling.pictures import labelled_grid
-
     if len(view_names) != cameras.batch_size:
         raise ValueError(f"need {cameras.batch_size} view names, got {len(view_names)}")
     tiles = np.stack([error_views(target, recon, cameras, scene, vmax).colours,

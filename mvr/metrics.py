@@ -20,6 +20,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import trimesh
 
+from sdfcommon.tooling.checks import check_instance, check_int
+
 NORMALISATION = "distances divided by the length of the target mesh's axis-aligned bounding-box diagonal"
 
 
@@ -54,8 +56,7 @@ class SurfaceDistances:
 
 
 def _check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise TypeError(f"{name} must be a trimesh.Trimesh, got {type(mesh).__name__}")
+    check_instance(mesh, name, trimesh.Trimesh, "a trimesh.Trimesh")
     if len(mesh.faces) == 0 or mesh.area <= 0:
         raise ValueError(f"{name} has no surface (no triangles or zero area)")
 
@@ -71,7 +72,7 @@ def one_sided_distances(points: np.ndarray, mesh: trimesh.Trimesh, nearest_centr
     Returns:
         (P,) float64 distances.
     """
-    from scipy.spatial import cKDTree
+    from scipy.spatial import cKDTree  # heavy: only the surface distances need it
 
     pts = np.asarray(points, dtype=np.float64)
     triangles = np.asarray(mesh.triangles, dtype=np.float64)
@@ -108,8 +109,7 @@ def surface_distances(recon: trimesh.Trimesh, target: trimesh.Trimesh, samples: 
     """
     _check_mesh(recon, "recon")
     _check_mesh(target, "target")
-    if not isinstance(samples, int) or samples < 1:
-        raise ValueError(f"samples must be a positive int, got {samples!r}")
+    check_int(samples, "samples", minimum=1)
     pts_a, _ = trimesh.sample.sample_surface(recon, samples, seed=seed)
     pts_b, _ = trimesh.sample.sample_surface(target, samples, seed=seed + 1)
     d_ab = one_sided_distances(pts_a, target)

@@ -1,10 +1,9 @@
-"""One level of multi-view reconstruction: Adam on the grid values with greedy view selection.
-
-Paper section 5.2 (and SPEC section 2): each pass first computes every view's loss; a view whose
-loss is above the mean gets up to ``hard_view_updates`` (20) updates, stopping once its loss is
-below the mean; the others get ``easy_view_updates`` (5); an update that raises the view's loss
-moves on to the next view. A level stops when its loss is below a tolerance, when a pass moves no
-grid value by more than a tiny step, when the loss stops improving, or at a pass or time limit.
+"""One level of multi-view reconstruction: Adam on the grid values with greedy view selection. Paper
+section 5.2 (and SPEC section 2): each pass first computes every view's loss; a view whose loss is
+above the mean gets up to ``hard_view_updates`` (20) updates, stopping once its loss is below the
+mean; the others get ``easy_view_updates`` (5); an update that raises the view's loss moves on to
+the next view. A level stops when its loss is below a tolerance, when a pass moves no grid value by
+more than a tiny step, when the loss stops improving, or at a pass or time limit.
 """
 from __future__ import annotations
 
@@ -13,11 +12,14 @@ import time
 from dataclasses import dataclass, field
 from typing import Sequence, Union
 
+import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 
 from sdfcommon.numerics.regularisers import band_regularisers
+from sdfcommon.tooling.checks import check_float, check_int, check_positive
 
 from .losses import view_image_losses, view_silhouette_losses
 
@@ -69,25 +71,21 @@ class OptimSettings:
     fill_cavities: bool = True
 
     def __post_init__(self) -> None:
-        if not self.lr > 0:
-            raise ValueError(f"lr must be positive, got {self.lr!r}")
+        check_positive(self.lr, "lr")
         if not 0 < self.lr_decay <= 1:
-            raise ValueError(f"lr_decay must lie in (0, 1], got {self.lr_decay!r}")
+            raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
         betas = tuple(float(b) for b in self.betas)
         if len(betas) != 2 or not all(0 <= b < 1 for b in betas):
             raise ValueError(f"betas must be two numbers in [0, 1), got {self.betas!r}")
         object.__setattr__(self, "betas", betas)
         for name in ("image_weight", "silhouette_weight", "eikonal_weight", "laplacian_weight", "loss_tol",
                      "rel_tol", "step_tol"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+            check_float(getattr(self, name), name, minimum=0)
         if self.image_weight == 0 and self.silhouette_weight == 0:
             raise ValueError("image_weight and silhouette_weight cannot both be 0: nothing to fit")
         for name in ("hard_view_updates", "easy_view_updates", "patience"):
-            if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                raise ValueError(f"{name} must be a positive int, got {getattr(self, name)!r}")
-        if not isinstance(self.min_passes, int) or self.min_passes < 1:
-            raise ValueError(f"min_passes must be a positive int, got {self.min_passes!r}")
+            check_int(getattr(self, name), name, minimum=1)
+        check_int(self.min_passes, "min_passes", minimum=1)
         for name in ("max_passes", "max_seconds"):
             value = getattr(self, name)
             if isinstance(value, (list, tuple)):
@@ -99,7 +97,7 @@ class OptimSettings:
         value = getattr(self, name)
         if isinstance(value, tuple):
             if not value:
-                raise ValueError(f"{name} must not be an empty list")
+                raise ValueError(f"{name} must be a number or a non-empty list, got []")
             return value[min(level, len(value) - 1)]
         return value
 
@@ -144,8 +142,7 @@ def fill_cavities(values: torch.Tensor) -> torch.Tensor:
     Not in the paper: without it, pockets inside the shape (which no view constrains) survive as
     bubbles that dominate the Hausdorff distance. Returns a new tensor (no gradient).
     """
-    import numpy as np
-    from scipy import ndimage
+    from scipy import ndimage  # heavy: only the cavity filling needs it
 
     v = values.detach()
     outside = (v > 0).cpu().numpy()
@@ -235,8 +232,6 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
     Returns:
         the fitted grid (detached) and the level's report.
     """
-    from tqdm.auto import tqdm
-
     if grid.batch_size != 1:
         raise ValueError(f"optimise_level fits one grid, got a batch of {grid.batch_size}")
     settings = losses.settings

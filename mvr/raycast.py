@@ -23,6 +23,8 @@ import numba
 import numpy as np
 import trimesh
 
+from sdfcommon.tooling.checks import check_shape
+
 # Relative slack when binning triangles into cells and accepting hits at cell faces, so a hit
 # exactly on a cell boundary is never lost to rounding.
 _EPS = 1e-9
@@ -98,7 +100,7 @@ class EmbreeCaster:
     """
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        from trimesh.ray.ray_pyembree import RayMeshIntersector  # ImportError without embreex
+        from trimesh.ray.ray_pyembree import RayMeshIntersector  # optional: ImportError without embreex
 
         v, f = _checked_mesh(vertices, faces)
         self.mesh = trimesh.Trimesh(vertices=v, faces=f, process=False)
@@ -122,7 +124,7 @@ class EmbreeCaster:
 def embree_available() -> bool:
     """Whether Embree can be used (``embreex`` imports and trimesh finds it)."""
     try:
-        from trimesh.ray import ray_pyembree  # noqa: F401
+        from trimesh.ray import ray_pyembree  # noqa: F401  # optional: embreex
     except ImportError:
         return False
     return bool(trimesh.ray.has_embree)
@@ -145,10 +147,8 @@ def _checked_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     """(V, 3) float64 vertices and (F, 3) int64 faces, checked."""
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
-        raise ValueError(f"faces must have shape (F, 3) with F >= 1, got {f.shape}")
+    check_shape(v, "vertices", "V, 3")
+    check_shape(f, "faces", "F, 3", at_least={"F": 1})
     if f.min() < 0 or f.max() >= len(v):
         raise ValueError("faces index vertices that do not exist")
     return v, f
@@ -159,7 +159,7 @@ def _checked_rays(origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarr
     o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
     d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
     if o.shape != d.shape:
-        raise ValueError(f"origins {o.shape} and directions {d.shape} must have the same shape")
+        raise ValueError(f"directions must have the shape of origins {o.shape}, got {d.shape}")
     return o, d
 
 

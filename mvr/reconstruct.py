@@ -30,6 +30,8 @@ import torch
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 from sdfcommon.tooling import outputs
 from sdfcommon.numerics.meshing import sdf_to_mesh
+from sdfcommon.tooling.checks import check_float, check_instance, check_int, check_positive
+from sdfcommon.tooling.pictures import labelled_grid
 from sdfcommon.tooling.serialization import load_torch
 
 from .metrics import NORMALISATION, surface_distances
@@ -52,10 +54,9 @@ class RigSettings:
     fov_deg: float = 56.0
 
     def __post_init__(self) -> None:
-        if not self.distance > 0:
-            raise ValueError(f"rig distance must be positive, got {self.distance!r}")
+        check_positive(self.distance, "rig distance")
         if not 0 < self.fov_deg < 180:
-            raise ValueError(f"rig fov_deg must lie in (0, 180), got {self.fov_deg!r}")
+            raise ValueError(f"rig fov_deg must be in (0, 180), got {self.fov_deg!r}")
 
     def cameras(self, image_size: int) -> Cameras:
         """The 26 cameras at the given image size."""
@@ -70,10 +71,9 @@ class GridSettings:
     init_radius: float = 0.6
 
     def __post_init__(self) -> None:
-        if not self.half_size > 0:
-            raise ValueError(f"grid half_size must be positive, got {self.half_size!r}")
+        check_positive(self.half_size, "grid half_size")
         if not 0 < self.init_radius < self.half_size:
-            raise ValueError(f"grid init_radius must lie in (0, half_size={self.half_size}), got {self.init_radius!r}")
+            raise ValueError(f"grid init_radius must be in (0, half_size={self.half_size}), got {self.init_radius!r}")
 
 
 @dataclass(frozen=True)
@@ -97,9 +97,8 @@ class NoiseSettings:
     camera_std: float = 0.0
 
     def __post_init__(self) -> None:
-        if not self.image_std >= 0 or not self.camera_std >= 0:
-            raise ValueError(f"noise image_std and camera_std must be >= 0, got {self.image_std!r}, "
-                             f"{self.camera_std!r}")
+        check_float(self.image_std, "noise image_std", minimum=0)
+        check_float(self.camera_std, "noise camera_std", minimum=0)
 
 
 @dataclass(frozen=True)
@@ -110,11 +109,10 @@ class EvalSettings:
     views: Sequence[int] = (0, 2, 4, 6, 12, 18)
 
     def __post_init__(self) -> None:
-        if not isinstance(self.samples, int) or self.samples < 1:
-            raise ValueError(f"eval samples must be a positive int, got {self.samples!r}")
+        check_int(self.samples, "eval samples", minimum=1)
         views = tuple(int(v) for v in self.views)
         if not views or min(views) < 0 or max(views) > 25:
-            raise ValueError(f"eval views must be indices in 0..25, got {list(self.views)!r}")
+            raise ValueError(f"eval views must be a non-empty list of view indices in [0, 25], got {list(self.views)!r}")
         object.__setattr__(self, "views", views)
 
 
@@ -181,8 +179,6 @@ def _comparison_image(targets: torch.Tensor, renders: torch.Tensor, views: Seque
     """Rows target / render / |difference| of (K, H, W, C) images, one column per view of ``views``
     (K indices, the column labels), cropped to the pixels where either image differs from its corner
     pixel (the background); a labelled (H', W', 3) array (``sdfcommon.tooling.pictures.labelled_grid``)."""
-    from sdfcommon.tooling.pictures import labelled_grid
-
     background = targets[:, :1, :1, :]
     busy = ((targets - background).abs().amax(dim=(0, 3)) > 0) | ((renders - background).abs().amax(dim=(0, 3)) > 0)
     rows, cols = torch.nonzero(busy, as_tuple=True)
@@ -233,8 +229,7 @@ def reconstruct(
     """
     t_run = time.perf_counter()
     scene = default_scene() if scene is None else scene
-    if not isinstance(scene, Scene):
-        raise TypeError(f"scene must be a renderer.Scene, got {type(scene).__name__}")
+    check_instance(scene, "scene", Scene, "a renderer.Scene")
     if not scene.wants("shading"):
         raise ValueError("scene.effects must include 'shading' (the image loss compares shaded images)")
     if optim.silhouette_weight > 0 and not scene.wants("silhouette"):

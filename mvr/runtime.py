@@ -23,8 +23,11 @@ from __future__ import annotations
 import os
 from typing import Optional
 
+import numba
 import torch
 
+import renderer
+from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.host_memory import tune_allocator
 
 def available_cores() -> int:
@@ -46,18 +49,13 @@ def configure_runtime(threads: Optional[int] = None, tune_malloc: bool = True, f
     """
     if threads is None:
         threads = available_cores()
-    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-        raise ValueError(f"threads must be a positive int or None (all cores), got {threads!r}")
+    check_int(threads, "threads (None: all cores)", minimum=1)
     torch.set_num_threads(threads)
     try:
-        import numba
-
         # Setting numba's thread count starts its thread pool: let the renderer's kernels start
         # it first, with the layer they choose (renderer.start_cpu_thread_pool: torch's own
         # OpenMP runtime). The renderer's kernels run with torch's count; this sets it for numba's
         # other parallel kernels (the fallback ray caster).
-        import renderer
-
         renderer.backend_available("cpu")
         numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     except (ImportError, ValueError):

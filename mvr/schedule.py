@@ -8,6 +8,7 @@ from typing import Optional, Sequence
 import torch
 
 from renderer import Cameras
+from sdfcommon.tooling.checks import check_int, check_positive
 
 
 @dataclass(frozen=True)
@@ -44,17 +45,15 @@ class Schedule:
             object.__setattr__(self, "resolutions", tuple(res))
         else:
             for name in ("start", "end", "levels"):
-                if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
-                    raise ValueError(f"{name} must be a positive int, got {getattr(self, name)!r}")
+                check_int(getattr(self, name), name, minimum=1)
             if self.start < 4 or self.end < self.start:
                 raise ValueError(f"need 4 <= start <= end, got start={self.start}, end={self.end}")
             if self.levels > 1 and self.end - self.start + 1 < self.levels:
                 raise ValueError(f"levels={self.levels} distinct resolutions do not fit between "
                                  f"start={self.start} and end={self.end}")
-        if self.image_size is not None and (not isinstance(self.image_size, int) or self.image_size < 4):
-            raise ValueError(f"image_size must be None or an int >= 4, got {self.image_size!r}")
-        if not self.voxel_footprint_px > 0:
-            raise ValueError(f"voxel_footprint_px must be positive, got {self.voxel_footprint_px!r}")
+        if self.image_size is not None:
+            check_int(self.image_size, "image_size", minimum=4)
+        check_positive(self.voxel_footprint_px, "voxel_footprint_px")
         if not 4 <= self.min_image_size <= self.max_image_size:
             raise ValueError(f"need 4 <= min_image_size <= max_image_size, got {self.min_image_size}, "
                              f"{self.max_image_size}")

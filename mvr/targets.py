@@ -1,18 +1,15 @@
-"""Reconstruction targets: a watertight mesh, normalised into the grid's box, and its images.
-
-A target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a built-in shape of
+"""Reconstruction targets: a watertight mesh, normalised into the grid's box, and its images. A
+target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a built-in shape of
 ``mvr.shapes`` (meshed finely by marching cubes). Either way it is centred on the origin and scaled
-so that the longest side of its bounding box is ``extent`` (world units).
-
-The target images come from the mesh itself: rays through the pixel centres of our cameras are cast
-against its triangles (``mvr.raycast.mesh_caster``: Embree where it installs) and the hits are
-shaded by ``renderer.shade_lambert`` with the same scene (lights, ambient, albedo, background) the
-optimiser renders with. The optimiser never sees an image made by its own renderer.
-
-Normals for the shading: ``"smooth"`` (default) interpolates the mesh's vertex normals with the
-barycentric weights of the hit, the right choice for meshes that approximate smooth surfaces (our
-renderer's normals are themselves smooth: interpolated finite differences); ``"face"`` uses each
-triangle's own normal, right for meshes with sharp, flat facets.
+so that the longest side of its bounding box is ``extent`` (world units). The target images come
+from the mesh itself: rays through the pixel centres of our cameras are cast against its triangles
+(``mvr.raycast.mesh_caster``: Embree where it installs) and the hits are shaded by
+``renderer.shade_lambert`` with the same scene (lights, ambient, albedo, background) the optimiser
+renders with. The optimiser never sees an image made by its own renderer. Normals for the shading:
+``"smooth"`` (default) interpolates the mesh's vertex normals with the barycentric weights of the
+hit, the right choice for meshes that approximate smooth surfaces (our renderer's normals are
+themselves smooth: interpolated finite differences); ``"face"`` uses each triangle's own normal,
+right for meshes with sharp, flat facets.
 """
 from __future__ import annotations
 
@@ -26,6 +23,7 @@ import trimesh
 
 from renderer import Cameras, Scene, shade_lambert
 from sdfcommon.numerics.meshing import sdf_to_mesh
+from sdfcommon.tooling.checks import check_int, check_positive
 
 from .raycast import EmbreeCaster, TriangleGrid, mesh_caster
 from .shapes import SHAPES
@@ -154,8 +152,7 @@ def shape_mesh(name: str, resolution: int = 192) -> trimesh.Trimesh:
     Newton steps of the implicit function."""
     if name not in SHAPES:
         raise ValueError(f"unknown shape {name!r}; built-in shapes: {', '.join(SHAPES)}")
-    if not isinstance(resolution, int) or resolution < 16:
-        raise ValueError(f"resolution must be an int >= 16, got {resolution!r}")
+    check_int(resolution, "resolution", minimum=16)
     shape = SHAPES[name]
     lo = np.array(shape.bounds_min, dtype=np.float64)
     hi = np.array(shape.bounds_max, dtype=np.float64)
@@ -180,8 +177,7 @@ def shape_mesh(name: str, resolution: int = 192) -> trimesh.Trimesh:
 def normalise_mesh(mesh: trimesh.Trimesh, extent: float) -> tuple[trimesh.Trimesh, float]:
     """A copy of ``mesh`` centred on the origin (bounding-box centre) with its longest bbox side
     equal to ``extent``; also returns the scale factor applied."""
-    if not extent > 0:
-        raise ValueError(f"extent must be positive, got {extent!r}")
+    check_positive(extent, "extent")
     lo, hi = mesh.bounds
     side = float((hi - lo).max())
     if not side > 0:

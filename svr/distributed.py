@@ -27,6 +27,9 @@ from typing import Iterator, Optional
 import numpy as np
 import torch
 import torch.distributed as dist
+from lightning_fabric.plugins.environments import SLURMEnvironment
+
+from sdfcommon.tooling.checks import check_int, check_shape, check_tensor
 
 
 @dataclass(frozen=True)
@@ -42,10 +45,8 @@ class RankInfo:
     world_size: int = 1
 
     def __post_init__(self) -> None:
-        if isinstance(self.world_size, bool) or not isinstance(self.world_size, int) or self.world_size < 1:
-            raise ValueError(f"world_size must be a positive int, got {self.world_size!r}")
-        if isinstance(self.rank, bool) or not isinstance(self.rank, int) or not 0 <= self.rank < self.world_size:
-            raise ValueError(f"rank must be an int in [0, {self.world_size}), got {self.rank!r}")
+        check_int(self.world_size, "world_size", minimum=1)
+        check_int(self.rank, "rank", 0, self.world_size - 1)
 
     @property
     def is_zero(self) -> bool:
@@ -131,8 +132,7 @@ def shard_indices(num_items: int, rank: int, world_size: int, pad: bool = False)
     Returns:
         (K,) int64 item indices.
     """
-    if isinstance(num_items, bool) or not isinstance(num_items, (int, np.integer)) or num_items < 0:
-        raise ValueError(f"num_items must be a non-negative int, got {num_items!r}")
+    check_int(int(num_items) if isinstance(num_items, np.integer) else num_items, "num_items", minimum=0)
     info = RankInfo(int(rank), int(world_size))
     n, w, r = int(num_items), info.world_size, info.rank
     if n == 0:
@@ -167,10 +167,7 @@ def gather_uneven(tensor: torch.Tensor) -> torch.Tensor:
         (sum_r M_r, ...) the ranks' tensors concatenated in rank order, on ``tensor``'s device. Without
         a process group (or with one process): ``tensor`` itself.
     """
-    if not isinstance(tensor, torch.Tensor):
-        raise TypeError(f"tensor must be a torch.Tensor, got {type(tensor).__name__}")
-    if tensor.dim() == 0:
-        raise ValueError("tensor must have a first dimension to gather along, got a 0-d tensor")
+    check_tensor(tensor, "tensor", "N, ...")
     if not is_initialized() or dist.get_world_size() == 1:
         return tensor
     world = dist.get_world_size()
@@ -200,8 +197,7 @@ def gather_unique(keys: torch.Tensor, *values: torch.Tensor) -> tuple[torch.Tens
     Returns:
         (keys (U, K), *values (U, ...)): the distinct items in gathered order, on the inputs' devices.
     """
-    if keys.dim() != 2:
-        raise ValueError(f"keys must be (M, K), got shape {tuple(keys.shape)}")
+    check_shape(keys, "keys", "M, K")
     for i, v in enumerate(values):
         if v.shape[:1] != keys.shape[:1]:
             raise ValueError(f"values[{i}] has {v.shape[0] if v.dim() else 0} rows, keys have {keys.shape[0]}")
@@ -240,7 +236,6 @@ def environment_ranks() -> Optional[tuple[int, int, str, int]]:
         world = int(env["SLURM_STEP_NUM_TASKS"])
         if world <= 1:
             return None
-        from lightning_fabric.plugins.environments import SLURMEnvironment
 
         nodes = env.get("SLURM_STEP_NODELIST", env.get("SLURM_NODELIST", "127.0.0.1"))
         addr = env.get("MASTER_ADDR") or SLURMEnvironment.resolve_root_node_address(nodes)

@@ -23,7 +23,8 @@ import torch
 from torch.nn import functional as F
 
 import renderer
-from sdfcommon.numerics.regularisers import band_regularisers, check_positive, eikonal_loss, laplacian_loss, narrow_band
+from sdfcommon.numerics.regularisers import band_regularisers, eikonal_loss, laplacian_loss, narrow_band
+from sdfcommon.tooling.checks import check_float, check_int, check_positive, check_shape
 
 from svr.view_renders import render_views
 
@@ -79,11 +80,9 @@ def resize_images(images: torch.Tensor, size: int) -> torch.Tensor:
     Returns:
         (B, V, C, size, size).
     """
-    if images.ndim != 5 or images.shape[-1] != images.shape[-2]:
-        raise ValueError(f"images must have shape (B, V, C, H, H), got {tuple(images.shape)}")
-    h = images.shape[-1]
-    if isinstance(size, bool) or not isinstance(size, int) or size <= 0 or h % size:
-        raise ValueError(f"size must be a positive divisor of the image side {h}, got {size!r}")
+    h = check_shape(images, "images", "B, V, C, H, H")["H"]
+    if check_int(size, "size", minimum=1) and h % size:
+        raise ValueError(f"size must be a divisor of the image side {h}, got {size!r}")
     if size == h:
         return images
     b, v, c = images.shape[:3]
@@ -132,8 +131,7 @@ def image_loss(
     Returns:
         ImageLoss.
     """
-    if images.ndim != 5 or images.shape[2] != 4:
-        raise ValueError(f"images must have shape (B, V, 4, H, W), got {tuple(images.shape)}")
+    check_shape(images, "images", "B, V, 4, H, W")
     if images.shape[:2] != view_ids.shape:
         raise ValueError(f"images {tuple(images.shape[:2])} and view_ids {tuple(view_ids.shape)} "
                          f"must agree on (B, V)")
@@ -175,9 +173,7 @@ class LossWeights:
 
     def __post_init__(self) -> None:
         for name in ("silhouette", "shading", "eikonal", "laplacian"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v >= 0 and v != float("inf")):
-                raise ValueError(f"loss weight {name} must be a finite number >= 0, got {v!r}")
+            check_float(getattr(self, name), f"loss weight {name}", minimum=0)
         check_positive(self.band_mu, "band_mu")
         if self.silhouette_kind not in SILHOUETTE_KINDS:
             raise ValueError(f"silhouette_kind must be one of {SILHOUETTE_KINDS}, got {self.silhouette_kind!r}")

@@ -1,9 +1,8 @@
-"""Predicted SDF grids rendered from NMR views: prediction -> renders.
-
-One function, ``render_views``, renders B grids each from its own V NMR views (``renderer.Cameras.nmr``)
-with a scene whose effects decide which passes run. Training's image loss uses it with gradients
-and the dataset's scene; ``render_previews`` is the same call without gradients and with a neutral
-grey preview scene, for the pictures of inference and the demo.
+"""Predicted SDF grids rendered from NMR views: prediction -> renders. One function,
+``render_views``, renders B grids each from its own V NMR views (``renderer.Cameras.nmr``) with a
+scene whose effects decide which passes run. Training's image loss uses it with gradients and the
+dataset's scene; ``render_previews`` is the same call without gradients and with a neutral grey
+preview scene, for the pictures of inference and the demo.
 """
 from __future__ import annotations
 
@@ -12,8 +11,8 @@ from typing import Optional, Sequence
 import torch
 
 import renderer
-from sdfcommon.tooling.checks import check_int
 from sdfcommon.numerics.regularisers import check_grid
+from sdfcommon.tooling.checks import check_int, check_shape
 
 from svr.data.nmr import check_view_ids
 
@@ -44,8 +43,7 @@ def render_views(
         (None unless the scene shades).
     """
     check_grid(sdf)
-    if view_ids.ndim != 2 or view_ids.shape[0] != sdf.shape[0]:
-        raise ValueError(f"view_ids must have shape (B={sdf.shape[0]}, V), got {tuple(view_ids.shape)}")
+    check_shape(view_ids, "view_ids", f"{sdf.shape[0]}, V")
     check_int(image_size, "image_size", minimum=1)
     b, v = view_ids.shape
     grid = renderer.SDFGrid(sdf, -float(half_side), float(half_side))

@@ -6,6 +6,8 @@ from typing import Sequence, Union
 import numpy as np
 import torch
 
+from sdfcommon.tooling.checks import check_shape
+
 BoundLike = Union[float, Sequence[float]]
 
 
@@ -23,12 +25,11 @@ def sdf_to_mesh(values, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0, l
         trimesh.Trimesh with outward normals (faces wound counter-clockwise seen from outside);
         an empty mesh when the grid has no zero crossing.
     """
-    import trimesh
-    from skimage import measure
+    import trimesh  # heavy: only meshing needs it
+    from skimage import measure  # heavy: only marching cubes needs it
 
     v = values.detach().cpu().double().numpy() if isinstance(values, torch.Tensor) else np.asarray(values, float)
-    if v.ndim != 3 or min(v.shape) < 2:
-        raise ValueError(f"values must be an (Nx, Ny, Nz) grid with each side >= 2, got shape {v.shape}")
+    check_shape(v, "values", "Nx, Ny, Nz", at_least={"Nx": 2, "Ny": 2, "Nz": 2})
     if not np.isfinite(v).all():
         raise ValueError("values contains NaN or Inf")
     lo = np.broadcast_to(np.asarray(bbox_min, float), (3,))

@@ -2,9 +2,7 @@
 (mvr): the paper's eikonal term ``(1 - |grad f|^2)^2`` and a Laplacian smoothness term, by finite
 differences at the grid's interior vertices, averaged over a narrow band ``|SDF| <= mu * voxel``
 (single view, paper section 6: mu = 1.6) or over every interior vertex (``mu=None``; multi view,
-section 5).
-
-Grids are (B, N, N, N) in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``),
+section 5). Grids are (B, N, N, N) in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``),
 world units, on a cubic lattice of spacing ``voxel_size``. On the CPU both terms and their backward
 run as one numba operation (``sdfcommon.numerics.band_kernel``); the torch path here is its specification.
 """
@@ -15,22 +13,14 @@ from typing import Optional
 
 import torch
 
+from sdfcommon.numerics import band_kernel
+from sdfcommon.tooling.checks import check_positive, check_tensor
+
 
 def check_grid(sdf: torch.Tensor, name: str = "sdf") -> None:
-    if not isinstance(sdf, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(sdf).__name__}")
-    if sdf.ndim != 4 or min(sdf.shape[1:]) < 3:
-        raise ValueError(f"{name} must have shape (B, N, N, N) with N >= 3, got {tuple(sdf.shape)}")
-    if not sdf.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got {sdf.dtype}")
-
-
-def check_positive(value: float, name: str) -> float:
-    """``value`` as a float, or a ValueError naming ``name`` unless it is positive and finite."""
-    v = float(value)
-    if not v > 0 or v == float("inf"):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return v
+    """Refuses what is not a floating-point (B, Nx, Ny, Nz) tensor with every side >= 3 (the
+    interior vertices' stencils need both neighbours), by ``check_tensor``'s rules and messages."""
+    check_tensor(sdf, name, "B, Nx, Ny, Nz", at_least={"Nx": 3, "Ny": 3, "Nz": 3}, floating=True)
 
 
 def narrow_band(sdf: torch.Tensor, voxel_size: float, mu: float = 1.6) -> torch.Tensor:
@@ -125,8 +115,6 @@ def band_regularisers(sdf: torch.Tensor, voxel_size: float, mu: Optional[float] 
     and their backward run as one operation (``sdfcommon.numerics.band_kernel``); otherwise, and as the
     specification it is tested against, one gather of the stencils and a matrix product."""
     if fused and sdf.device.type == "cpu" and sdf.dtype in (torch.float32, torch.float64):
-        from sdfcommon.numerics import band_kernel
-
         if band_kernel.available():
             base, h = band_vertices(sdf, voxel_size, mu)
             if base is None:
@@ -172,5 +160,4 @@ def _one_term(sdf: torch.Tensor, voxel_size: float, mu: Optional[float], term) -
     return _zero(sdf) if st is None else term(st @ _stencil_weights(st, h))
 
 
-__all__ = ["narrow_band", "band_vertices", "band_regularisers", "eikonal_loss", "laplacian_loss", "check_grid",
-           "check_positive"]
+__all__ = ["narrow_band", "band_vertices", "band_regularisers", "eikonal_loss", "laplacian_loss", "check_grid"]

@@ -1,12 +1,15 @@
-"""Argument checks whose errors name the argument and what was expected (ValueError/TypeError).
-
-Used by the Python APIs and, through ``sdfcommon.tooling.commands``'s config getters, by the entry points, so a
-value is judged by one rule whichever way it arrives.
+"""The project's one argument-checking module: each check raises a ValueError or TypeError in one
+format, ``"<name> must be <expected>, got <value!r>"`` (shapes: ``"<name> must have shape (B, N, N, N),
+got (2, 3)"``), and returns the value it judged. Used by the Python APIs and, through
+``sdfcommon.tooling.commands``'s config getters, by the entry points, so a value is judged by one rule
+whichever way it arrives. It imports no torch: a tensor check asks only whether torch is loaded.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+import re
+import sys
 import typing
 from collections.abc import Mapping, Sequence
 from typing import Any, Optional, Union
@@ -36,12 +39,130 @@ def check_float(value: Any, name: str, minimum: Optional[float] = None, maximum:
     return float(value)
 
 
+def check_positive(value: Any, name: str) -> float:
+    """``value`` as a float (anything ``float()`` takes: ints, numpy scalars, one-element tensors),
+    refusing what is not positive and finite.
+
+    Raises:
+        ValueError: ``"<name> must be a positive finite number, got <value!r>"``.
+    """
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not (v > 0 and math.isfinite(v)):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return v
+
+
+def check_int_sequence(values: Any, name: str, minimum: Optional[int] = None, maximum: Optional[int] = None,
+                       allow_empty: bool = False) -> tuple[int, ...]:
+    """``values`` (any iterable) as a tuple of ints, each judged as ``check_int`` judges one; empty
+    only with ``allow_empty``.
+
+    Raises:
+        ValueError: ``"<name> must be a non-empty sequence of integers >= <minimum>, got <values!r>"``.
+    """
+    try:
+        out = tuple(values)
+    except TypeError:
+        out = None
+    if out is None or (not out and not allow_empty) or any(
+            isinstance(v, bool) or not isinstance(v, int) or (minimum is not None and v < minimum)
+            or (maximum is not None and v > maximum) for v in out):
+        raise ValueError(f"{name} must be a {'' if allow_empty else 'non-empty '}sequence of integers"
+                         f"{_bounds(minimum, maximum)}, got {values!r}")
+    return tuple(int(v) for v in out)
+
+
+def check_instance(value: Any, name: str, cls: Union[type, tuple[type, ...]], expected: str = "") -> Any:
+    """``value`` when it is an instance of ``cls``.
+
+    Raises:
+        TypeError: ``"<name> must be <expected>, got <type>"`` (``expected`` defaults to ``a <cls name>``).
+    """
+    if not isinstance(value, cls):
+        expected = expected or " or ".join(f"a {c.__name__}" for c in (cls if isinstance(cls, tuple) else (cls,)))
+        raise TypeError(f"{name} must be {expected}, got {type(value).__name__}")
+    return value
+
+
 def _bounds(minimum, maximum) -> str:
     if minimum is not None and maximum is not None:
         return f" in [{minimum}, {maximum}]"
     if minimum is not None:
         return f" >= {minimum}"
     return f" <= {maximum}" if maximum is not None else ""
+
+
+# ------------------------------------------------------------------------------------------------
+# Shapes of arrays and tensors
+
+
+def _shape_matches(shape: tuple[int, ...], pattern: str, at_least: Mapping[str, int]) -> Optional[dict[str, int]]:
+    """The sizes the letters of ``pattern`` ("B, N, N, N", "..., R, R, R", "V, 3") take in
+    ``shape``, or None when it does not fit (a letter is one size wherever it appears)."""
+    dims = [d.strip() for d in pattern.split(",") if d.strip()]
+    if dims and "..." in (dims[0], dims[-1]):
+        leading = dims[0] == "..."
+        dims = dims[1:] if leading else dims[:-1]
+        if len(shape) < len(dims):
+            return None
+        shape = shape[len(shape) - len(dims):] if leading else shape[:len(dims)]
+    elif len(shape) != len(dims):
+        return None
+    sizes: dict[str, int] = {}
+    for dim, size in zip(dims, shape):
+        if re.fullmatch(r"\d+", dim):
+            if size != int(dim):
+                return None
+        elif sizes.setdefault(dim, size) != size or size < at_least.get(dim, 0):
+            return None
+    return sizes
+
+
+def check_shape(value: Any, name: str, *shapes: str, at_least: Optional[Mapping[str, int]] = None) -> dict[str, int]:
+    """The sizes of ``value``'s shape (a numpy array, a torch tensor: anything with ``.shape``) by
+    the letters of the first of ``shapes`` it fits, e.g. ``check_shape(sdf, "sdf", "B, N, N, N",
+    at_least={"N": 3})`` -> ``{"B": 2, "N": 16}``. Numbers are fixed sizes, a leading (or trailing)
+    ``...`` takes any leading (trailing) axes, ``at_least`` gives the smallest size of a letter.
+
+    Raises:
+        TypeError: ``"<name> must be an array or tensor, got <type>"`` (no shape).
+        ValueError: ``"<name> must have shape (B, N, N, N) with N >= 3, got (2, 3)"``.
+    """
+    shape = getattr(value, "shape", None)
+    if not isinstance(shape, tuple):
+        raise TypeError(f"{name} must be an array or tensor, got {type(value).__name__}")
+    at_least = at_least or {}
+    for pattern in shapes:
+        sizes = _shape_matches(tuple(shape), pattern, at_least)
+        if sizes is not None:
+            return sizes
+    by_limit: dict[int, list[str]] = {}
+    for letter, limit in at_least.items():
+        by_limit.setdefault(limit, []).append(letter)
+    limits = " and ".join(f"{', '.join(letters)} >= {limit}" for limit, letters in by_limit.items())
+    expected = " or ".join(f"({p})" for p in shapes) + (f" with {limits}" if limits else "")
+    raise ValueError(f"{name} must have shape {expected}, got {tuple(shape)}")
+
+
+def check_tensor(value: Any, name: str, *shapes: str, at_least: Optional[Mapping[str, int]] = None,
+                 floating: bool = False) -> dict[str, int]:
+    """``check_shape`` for a torch tensor (floating point with ``floating``); returns its sizes.
+
+    Raises:
+        TypeError: ``"<name> must be a torch.Tensor, got <type>"``, ``"<name> must be a floating-point
+            tensor, got <dtype>"``.
+        ValueError: as ``check_shape``.
+    """
+    torch = sys.modules.get("torch")  # not loaded: value cannot be a tensor, and this module stays light
+    if torch is None or not isinstance(value, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
+    sizes = check_shape(value, name, *shapes, at_least=at_least) if shapes else {}
+    if floating and not value.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got {value.dtype}")
+    return sizes
 
 
 # ------------------------------------------------------------------------------------------------
@@ -110,4 +231,5 @@ def check_field_types(cls: type, values: Mapping[str, Any], name: str = "") -> N
             raise TypeError(f"{key} must be {_describe(hints[f.name])}, got {values[f.name]!r}")
 
 
-__all__ = ["check_int", "check_float", "check_field_types"]
+__all__ = ["check_int", "check_float", "check_positive", "check_int_sequence", "check_instance", "check_shape", "check_tensor",
+           "check_field_types"]

@@ -86,7 +86,7 @@ def write_csv(path: str | Path, rows: Sequence[dict], columns: Sequence[str]) ->
 
 def write_torch(path: str | Path, obj) -> Path:
     """``torch.save`` atomically."""
-    import torch
+    import torch  # heavy: this module stays light for the commands that write no tensors
 
     return atomic_write(path, lambda f: torch.save(obj, f))
 
@@ -109,7 +109,7 @@ def _as_bytes(data) -> bytes:
 
 def write_png(path: str | Path, image: np.ndarray) -> Path:
     """Writes an (H, W) or (H, W, 3) float image in [0, 1] as an 8-bit PNG, atomically."""
-    from PIL import Image
+    from PIL import Image  # heavy: only PNG writing needs it
 
     arr = (np.clip(np.asarray(image, dtype=np.float64), 0.0, 1.0) * 255).round().astype(np.uint8)
     return atomic_write(path, lambda f: Image.fromarray(arr).save(f, format="PNG"))

@@ -1,7 +1,6 @@
-"""Pictures people read: a grid of image tiles with its rows and columns labelled.
-
-Small renders (32-64 px, or a crop of a few dozen pixels) are scaled up by a whole factor with
-nearest-neighbour sampling, so each pixel stays a sharp square and the labels have room.
+"""Pictures people read: a grid of image tiles with its rows and columns labelled. Small renders
+(32-64 px, or a crop of a few dozen pixels) are scaled up by a whole factor with nearest-neighbour
+sampling, so each pixel stays a sharp square and the labels have room.
 """
 from __future__ import annotations
 
@@ -9,6 +8,8 @@ import math
 from typing import Sequence
 
 import numpy as np
+
+from sdfcommon.tooling.checks import check_int, check_shape
 
 TEXT_SIZE = 14
 PADDING = 6
@@ -30,20 +31,17 @@ def labelled_grid(tiles, row_labels: Sequence[str], column_labels: Sequence[str]
         (H, W, 3) float32 array in [0, 1], H = top label strip + R * (s h + gap) and
         W = left label strip + C * (max(s w, longest label word) + gap) for the scale s.
     """
-    from PIL import Image, ImageDraw
+    from PIL import Image, ImageDraw  # heavy: only drawing needs it
 
     arr = np.asarray(tiles, dtype=np.float32)
+    check_shape(arr, "tiles", "R, C, h, w", "R, C, h, w, 3", at_least={"R": 1, "C": 1, "h": 1, "w": 1})
     if arr.ndim == 4:
         arr = np.repeat(arr[..., None], 3, axis=-1)
-    if arr.ndim != 5 or arr.shape[-1] != 3 or 0 in arr.shape:
-        raise ValueError(f"tiles must have shape (R, C, h, w) or (R, C, h, w, 3) with no empty axis, "
-                         f"got {tuple(np.shape(tiles))}")
     n_rows, n_cols, h, w, _ = arr.shape
     if len(row_labels) != n_rows or len(column_labels) != n_cols:
         raise ValueError(f"need {n_rows} row labels and {n_cols} column labels for the tiles, got "
                          f"{len(row_labels)} and {len(column_labels)}")
-    if isinstance(min_tile, bool) or not isinstance(min_tile, int) or min_tile < 1:
-        raise ValueError(f"min_tile must be a positive int, got {min_tile!r}")
+    check_int(min_tile, "min_tile", minimum=1)
     scale = max(1, math.ceil(min_tile / max(h, w)))
     th, tw = h * scale, w * scale
     pixels = (np.clip(arr, 0.0, 1.0) * 255).round().astype(np.uint8)
@@ -74,7 +72,7 @@ def labelled_grid(tiles, row_labels: Sequence[str], column_labels: Sequence[str]
 
 def _font():
     """PIL's built-in font (no file to find or download); a scalable one where PIL has FreeType."""
-    from PIL import ImageFont
+    from PIL import ImageFont  # heavy: only drawing needs it
 
     try:
         return ImageFont.load_default(size=TEXT_SIZE)

@@ -1,13 +1,14 @@
-"""Worker processes that die with their parent.
-
-A ``ProcessPoolExecutor``'s workers outlive a parent killed by SIGTERM or SIGKILL: they wait on
-their call queue forever (seen: evaluation workers left running, holding their memory). ``process_pool``
-gives each worker two guards: on Linux the kernel sends it SIGKILL when the parent dies
-(``prctl(PR_SET_PDEATHSIG)``), and everywhere a daemon thread ends it once its parent is gone
-(its parent process id changes), checked every ``PARENT_POLL_S`` seconds.
+"""Worker processes that die with their parent. A ``ProcessPoolExecutor``'s workers outlive a parent
+killed by SIGTERM or SIGKILL: they wait on their call queue forever (seen: evaluation workers left
+running, holding their memory). ``process_pool`` gives each worker two guards: on Linux the kernel
+sends it SIGKILL when the parent dies (``prctl(PR_SET_PDEATHSIG)``), and everywhere a daemon thread
+ends it once its parent is gone (its parent process id changes), checked every ``PARENT_POLL_S``
+seconds.
 """
 from __future__ import annotations
 
+import ctypes
+import multiprocessing
 import os
 import signal
 import sys
@@ -25,8 +26,6 @@ def die_with_parent(parent_pid: int) -> None:
     Safe to call where prctl does not exist (the watchdog thread still runs).
     """
     if sys.platform.startswith("linux"):
-        import ctypes
-
         try:
             ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL))
         except (OSError, AttributeError):
@@ -47,8 +46,6 @@ def process_pool(workers: int, initializer: Optional[Callable[..., None]] = None
                  initargs: tuple = ()) -> ProcessPoolExecutor:
     """A pool of ``workers`` spawned processes (no fork of a parent holding threads and CUDA) that
     die with this process (``die_with_parent``), each then running ``initializer(*initargs)``."""
-    import multiprocessing
-
     return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_start_worker, initargs=(os.getpid(), initializer, tuple(initargs)))
 

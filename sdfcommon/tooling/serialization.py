@@ -1,5 +1,4 @@
 """Reading PyTorch files safely: tensors and plain values only, errors that name the file.
-
 ``torch.load(weights_only=True)`` refuses a file that would run code; its message then advises
 re-running with ``weights_only=False``, which runs whatever the file names. Our messages never pass
 that advice on (``load_error_reason``).
@@ -48,7 +47,7 @@ def load_torch(path: Union[str, os.PathLike], map_location: Any = "cpu", what: s
         FileNotFoundError naming the file; ValueError naming the file when it is a folder,
         truncated, corrupt or holds anything but plain values.
     """
-    import torch
+    import torch  # heavy: this module stays light for the commands that load no tensors
 
     p = Path(path)
     if p.is_dir():

@@ -1,9 +1,10 @@
 """Single-view data: the NMR ShapeNet format (``nmr``), the procedural dataset in that format
-(``procedural``, its shape categories in ``categories``, built on the analytic CSG shapes of
-``csg``), the Lightning DataModules
-(``datamodule``) and the batch contract (``types``).
-
-Names are imported lazily, so that ``import svr.data.types`` stays light.
+(``procedural``: its shape categories in ``categories``, built on the analytic CSG shapes of
+``csg``), the Lightning DataModules (``datamodule``) and the batch contract (``types``). The names
+below are loaded on first use (``__getattr__``) for start-up cost: every import of a submodule
+(``svr.data.nmr`` by the evaluation tables, ``svr.data.types`` by the models) runs this file first,
+and importing the DataModules here would load Lightning and the procedural generator into every
+command and worker process that needs only the NMR format.
 """
 from __future__ import annotations
 

@@ -1,28 +1,24 @@
 """Lightning DataModules yielding ``SVRBatch`` from NMR-format folders (NMR ShapeNet or procedural).
-
 Training (SPEC section 5): each batch element is a random object, then ``views_per_sample`` (V = 2)
-distinct random views of it; view 0 is the network's input, all V supervise. The draws happen in
-the main process (``ObjectViewSampler``, seeded by ``seed`` and the epoch), so they do not depend on
-the number of workers.
-
-Evaluation (val and test): deterministic, one item per (object, view) in the order category,
-object, view, with V = 1: ``batch.images`` is (B, 1, 4, 64, 64), ``batch.view_ids`` (B, 1). The test
-loader covers all 24 views of every test object (the benchmark counts each view as one
-prediction); the validation loader can be thinned with ``val_views`` / ``val_objects_per_category``.
-
-Workers: the datasets hold no arrays when pickled; each worker opens the prepared ``.npy`` files
-memory-mapped, so the page cache holds one copy whatever ``num_workers``.
-
-Several processes (DDP, ``trainer=ddp``): the samplers are rank-aware. Training: every rank draws the
-same stream of an epoch (seeded by ``seed`` and the epoch) and takes every world-size-th key of it,
-so the ranks see disjoint parts of one stream, and together the keys a single process with a
-world-size-times larger batch would see (``samples_per_epoch`` counts all ranks together; the last
-``samples_per_epoch mod world size`` keys are dropped so that every rank runs the same number of
-steps). Evaluation: each rank takes one contiguous block of the (object, view) items, padded by
-wrapping around so that all ranks run the same number of batches (DDP's forward pass is a
-collective); ``SVRLightningModule`` gathers the per-image IoU and counts each image once. The
-processes of a node share the memory-mapped arrays as they share them between workers: the page
-cache holds one copy whatever the number of processes (tests/svr/test_distributed.py measures it).
+distinct random views of it; view 0 is the network's input, all V supervise. The draws happen in the
+main process (``ObjectViewSampler``, seeded by ``seed`` and the epoch), so they do not depend on the
+number of workers. Evaluation (val and test): deterministic, one item per (object, view) in the
+order category, object, view, with V = 1: ``batch.images`` is (B, 1, 4, 64, 64), ``batch.view_ids``
+(B, 1). The test loader covers all 24 views of every test object (the benchmark counts each view as
+one prediction); the validation loader can be thinned with ``val_views`` /
+``val_objects_per_category``. Workers: the datasets hold no arrays when pickled; each worker opens
+the prepared ``.npy`` files memory-mapped, so the page cache holds one copy whatever
+``num_workers``. Several processes (DDP, ``trainer=ddp``): the samplers are rank-aware. Training:
+every rank draws the same stream of an epoch (seeded by ``seed`` and the epoch) and takes every
+world-size-th key of it, so the ranks see disjoint parts of one stream, and together the keys a
+single process with a world-size-times larger batch would see (``samples_per_epoch`` counts all
+ranks together; the last ``samples_per_epoch mod world size`` keys are dropped so that every rank
+runs the same number of steps). Evaluation: each rank takes one contiguous block of the (object,
+view) items, padded by wrapping around so that all ranks run the same number of batches (DDP's
+forward pass is a collective); ``SVRLightningModule`` gathers the per-image IoU and counts each
+image once. The processes of a node share the memory-mapped arrays as they share them between
+workers: the page cache holds one copy whatever the number of processes
+(tests/svr/test_distributed.py measures it).
 """
 from __future__ import annotations
 
@@ -36,6 +32,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 from torch.utils.data.distributed import DistributedSampler
 
+from sdfcommon.tooling.checks import check_int
 from svr.distributed import RankInfo, shard_indices
 from svr.data.nmr import NUM_VIEWS, SPLITS, NMRDataset, check_view_ids, prepare_nmr, resolve_categories
 from svr.data.procedural.generator import (DEFAULT_SHADING, ProceduralSettings, default_workers, ensure_procedural_dataset,
@@ -111,9 +108,9 @@ class ObjectViewSampler(RankShardedSampler):
         if sum(self.counts) == 0:
             raise ValueError("the training split holds no objects")
         if not 1 <= views_per_sample <= num_views:
-            raise ValueError(f"views_per_sample must lie in [1, {num_views}], got {views_per_sample}")
+            raise ValueError(f"views_per_sample must be in [1, {num_views}], got {views_per_sample!r}")
         if samples_per_epoch < 1:
-            raise ValueError(f"samples_per_epoch must be positive, got {samples_per_epoch}")
+            raise ValueError(f"samples_per_epoch must be >= 1, got {samples_per_epoch!r}")
         self.views_per_sample = int(views_per_sample)
         self.samples_per_epoch = int(samples_per_epoch)
         self.seed = int(seed)
@@ -125,7 +122,7 @@ class ObjectViewSampler(RankShardedSampler):
         """Makes the next pass over ``epoch`` start after this rank's first ``keys`` keys (what a
         resumed run had already trained on), and sets the epoch. Other epochs are not affected."""
         if epoch < 0 or keys < 0:
-            raise ValueError(f"resume position must be non-negative, got epoch {epoch}, keys {keys}")
+            raise ValueError(f"the resume position (epoch, keys) must be >= 0, got {(epoch, keys)!r}")
         self.set_epoch(epoch)
         self._resume = (int(epoch), int(keys))
 
@@ -214,9 +211,7 @@ class EvalShardSampler(RankShardedSampler):
     def __init__(self, num_items: int, pad: bool = True, rank: Optional[int] = None,
                  world_size: Optional[int] = None):
         super().__init__(rank, world_size)
-        if isinstance(num_items, bool) or not isinstance(num_items, int) or num_items < 0:
-            raise ValueError(f"num_items must be a non-negative int, got {num_items!r}")
-        self.num_items = num_items
+        self.num_items = check_int(num_items, "num_items", minimum=0)
         self.pad = bool(pad)
 
     def indices(self) -> np.ndarray:
@@ -272,7 +267,7 @@ class EvalViews(Dataset):
         self.objects = objects
         self.views = list(range(NUM_VIEWS)) if views is None else list(check_view_ids(views, allow_empty=False))
         if max_objects_per_category is not None and max_objects_per_category < 1:
-            raise ValueError(f"max_objects_per_category must be positive or None, got {max_objects_per_category}")
+            raise ValueError(f"max_objects_per_category must be >= 1 or None, got {max_objects_per_category!r}")
         keep = []
         for c, n in enumerate(objects.counts):
             m = n if max_objects_per_category is None else min(n, max_objects_per_category)
@@ -346,15 +341,12 @@ class NMRDataModule(pl.LightningDataModule):
     def _init_common(self, batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
                      val_views, val_objects_per_category, num_workers, pin_memory, seed, black_background,
                      prepared_dir, prepare) -> None:
-        for name, value in (("batch_size", batch_size), ("eval_batch_size", eval_batch_size)):
-            if not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive int, got {value!r}")
-        if not isinstance(views_per_sample, int) or not 1 <= views_per_sample <= NUM_VIEWS:
-            raise ValueError(f"views_per_sample must be an int in [1, {NUM_VIEWS}], got {views_per_sample!r}")
-        if samples_per_epoch is not None and (not isinstance(samples_per_epoch, int) or samples_per_epoch < 1):
-            raise ValueError(f"samples_per_epoch must be a positive int or None, got {samples_per_epoch!r}")
-        if not isinstance(num_workers, int) or num_workers < 0:
-            raise ValueError(f"num_workers must be a non-negative int, got {num_workers!r}")
+        check_int(batch_size, "batch_size", minimum=1)
+        check_int(eval_batch_size, "eval_batch_size", minimum=1)
+        check_int(views_per_sample, "views_per_sample", 1, NUM_VIEWS)
+        if samples_per_epoch is not None:
+            check_int(samples_per_epoch, "samples_per_epoch", minimum=1)
+        check_int(num_workers, "num_workers", minimum=0)
         self.batch_size = batch_size
         self.eval_batch_size = eval_batch_size
         self.views_per_sample = views_per_sample
@@ -457,9 +449,7 @@ class ProceduralDataModule(NMRDataModule):
         pl.LightningDataModule.__init__(self)
         if generation_workers is None:
             generation_workers = default_workers()
-        if isinstance(generation_workers, bool) or not isinstance(generation_workers, int) or generation_workers < 0:
-            raise ValueError(f"generation_workers must be an int >= 0 or null, got {generation_workers!r}")
-        self.generation_workers = generation_workers
+        self.generation_workers = check_int(generation_workers, "generation_workers", minimum=0)
         self.settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample,
                                            voxel_rule)
         cache = Path(cache_dir).expanduser()

@@ -24,6 +24,7 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from renderer import NMR_NUM_VIEWS as NUM_VIEWS
 from sdfcommon.tooling.checks import check_int
@@ -193,8 +194,6 @@ def prepare_nmr(root: PathLike, prepared_dir: Optional[PathLike] = None,
     Raises:
         FileNotFoundError / ValueError naming the offending file.
     """
-    from tqdm.auto import tqdm
-
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"NMR data folder does not exist: {root}")
@@ -417,8 +416,7 @@ class NMRDataset(torch.utils.data.Dataset):
     def silhouettes(self, view: int) -> np.ndarray:
         """(N, 64, 64) uint8 alpha channel of one view of every object, in dataset order (one strided
         read per category of the memory-mapped arrays)."""
-        if isinstance(view, bool) or not isinstance(view, (int, np.integer)) or not 0 <= view < NUM_VIEWS:
-            raise ValueError(f"view must be an int in [0, {NUM_VIEWS}), got {view!r}")
+        check_int(int(view) if isinstance(view, np.integer) else view, "view", 0, NUM_VIEWS - 1)
         parts = [np.asarray(images[:, int(view), 3]) for images, _ in self._open()]
         return np.concatenate(parts) if parts else np.zeros((0, 64, 64), np.uint8)
 

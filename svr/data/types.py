@@ -5,6 +5,8 @@ from dataclasses import dataclass
 
 import torch
 
+import renderer
+
 
 @dataclass(frozen=True)
 class ShadingModel:
@@ -20,8 +22,6 @@ class ShadingModel:
     def scene(self, effects: tuple[str, ...] = ("silhouette", "shading"), **kwargs):
         """The renderer.Scene that shades like the dataset: one directional light (world frame),
         ambient, albedo and background. ``kwargs`` go to Scene (e.g. ``silhouette_sigma``)."""
-        import renderer
-
         return renderer.Scene(effects=effects,
                               lights=(renderer.DirectionalLight(tuple(self.light_direction),
                                                                 float(self.light_intensity)),),

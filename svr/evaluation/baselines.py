@@ -28,8 +28,12 @@ from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
+from sdfcommon.tooling.checks import check_shape
+from svr.data.procedural.generator import dataset_shape, is_procedural_dataset
 from svr.evaluation.metrics import voxel_iou, voxels_protocol
+from svr.evaluation.voxels import clip_to_box, voxels_to_sdf
 
 BASELINES: tuple[str, ...] = ("mean_shape", "category_mean_shape", "retrieval", "oracle")
 LABELS: Mapping[str, str] = {
@@ -90,8 +94,6 @@ def protocol_voxels_of_voxels(voxels) -> torch.Tensor:
     Returns:
         (32, 32, 32) bool (NMR frame).
     """
-    from svr.evaluation.voxels import voxels_to_sdf
-
     values, lo, hi = voxels_to_sdf(np.asarray(voxels, dtype=bool))
     return voxels_protocol(torch.from_numpy(values), lo, hi)[0]
 
@@ -134,8 +136,6 @@ def category_mean_shapes(train) -> dict[int, torch.Tensor]:
     Returns:
         {category index: (32, 32, 32) bool protocol voxels}, for the categories with objects.
     """
-    from svr.evaluation.voxels import voxels_to_sdf
-
     out = {}
     for c, count in enumerate(train.counts):
         if count == 0:
@@ -179,8 +179,7 @@ def retrieve(train, queries: np.ndarray, views: np.ndarray, chunk: int = 1024,
     """
     queries = np.asarray(queries)
     views = np.asarray(views, dtype=np.int64).reshape(-1)
-    if queries.ndim != 3 or len(queries) != len(views):
-        raise ValueError(f"queries must be (Q, H, W) with one view per query, got {queries.shape} and {views.shape}")
+    check_shape(queries, "queries", f"{len(views)}, H, W")  # one view per query
     if len(train) == 0:
         raise ValueError("retrieval needs a non-empty training split")
     out = np.full(len(views), -1, dtype=np.int64)
@@ -210,9 +209,6 @@ def oracle_voxels(root, category_id: str, split: str, index: int, half_side: flo
     Returns:
         (32, 32, 32) bool (NMR frame).
     """
-    from svr.data.procedural.generator import dataset_shape
-    from svr.evaluation.voxels import clip_to_box
-
     shape = dataset_shape(root, category_id, split, index)
     axis = np.linspace(-half_side, half_side, grid_resolution)
     values = torch.from_numpy(shape.sdf_numpy(np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1)))
@@ -233,8 +229,6 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
     Returns:
         {name: (M,) float64 IoU}, M = the result's images, in its order.
     """
-    from tqdm.auto import tqdm
-
     names = check_baselines(names)
     if [c for c, _ in getattr(train, "categories", [])] != [c for c, _ in result.categories]:
         raise ValueError("the training split's categories differ from the evaluated data's")
@@ -266,8 +260,6 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
                 ious[k] = float(voxel_iou(train.voxels(int(t)), gt[int(g)]))
             out[name] = ious
         elif name == "oracle":
-            from svr.data.procedural.generator import is_procedural_dataset
-
             if not is_procedural_dataset(objects.root):
                 continue
             split = objects.split

@@ -23,6 +23,7 @@ from typing import Mapping, Optional, Sequence, Union
 import numpy as np
 import torch
 
+from sdfcommon.tooling.checks import check_shape
 from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, BoundLike, voxelize_sdf_direct, voxelize_sdf_protocol
 
 ArrayLike = Union[np.ndarray, torch.Tensor]
@@ -43,10 +44,9 @@ PROTOCOL_LIKE_LEVEL = 0.55 / 31
 
 def _as_bool_voxels(x: ArrayLike, name: str) -> torch.Tensor:
     t = torch.as_tensor(np.asarray(x) if not isinstance(x, torch.Tensor) else x)
+    check_shape(t, name, "B, R, R, R", "R, R, R")
     if t.ndim == 3:
         t = t.unsqueeze(0)
-    if t.ndim != 4 or not (t.shape[1] == t.shape[2] == t.shape[3]):
-        raise ValueError(f"{name} must have shape (B, R, R, R) or (R, R, R), got {tuple(t.shape)}")
     if t.dtype != torch.bool:
         if t.is_floating_point():
             raise TypeError(f"{name} must be bool (or 0/1 integers), got {t.dtype}")
@@ -73,10 +73,9 @@ def voxel_iou(pred: ArrayLike, gt: ArrayLike) -> torch.Tensor:
 
 def _as_grid_batch(values: ArrayLike) -> torch.Tensor:
     v = values if isinstance(values, torch.Tensor) else torch.as_tensor(np.asarray(values))
+    check_shape(v, "values", "B, Nx, Ny, Nz", "Nx, Ny, Nz")
     if v.ndim == 3:
         v = v.unsqueeze(0)
-    if v.ndim != 4:
-        raise ValueError(f"values must have shape (B, Nx, Ny, Nz) or (Nx, Ny, Nz), got {tuple(v.shape)}")
     if not v.is_floating_point():
         raise TypeError(f"values must be a floating-point SDF grid, got {v.dtype}")
     return v.detach()
@@ -203,7 +202,7 @@ def iou_table(per_image_iou: ArrayLike, category_index: ArrayLike,
     cat = np.asarray(category_index.cpu() if isinstance(category_index, torch.Tensor) else category_index)
     cat = cat.reshape(-1)
     if iou.shape != cat.shape:
-        raise ValueError(f"per_image_iou ({iou.shape}) and category_index ({cat.shape}) must have the same length")
+        raise ValueError(f"category_index must have one entry per image ({iou.shape}), got shape {cat.shape}")
     if cat.size and not np.issubdtype(cat.dtype, np.integer):
         raise TypeError(f"category_index must hold integers, got {cat.dtype}")
     if cat.size and (cat.min() < 0 or cat.max() >= len(categories)):

@@ -15,9 +15,10 @@ from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
 
+from sdfcommon.tooling.checks import check_instance
 from sdfcommon.tooling.outputs import ensure_output_dir, write_csv, write_json, write_text
-
 from svr.data.nmr import NMR_CATEGORIES, NUM_VIEWS
+from svr.evaluation.baselines import DESCRIPTIONS, LABELS
 from svr.evaluation.metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table
 
 PathLike = Union[str, os.PathLike]
@@ -192,8 +193,6 @@ class EvaluationResult:
         if coarse is not None:
             out["coarse"] = summary(coarse)
         if self.baselines:
-            from svr.evaluation.baselines import DESCRIPTIONS, LABELS
-
             out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
                                        **summary(self.baseline_table(name))} for name in self.baselines}
         minus = self.minus_retrieval()
@@ -217,8 +216,7 @@ ExtraRows = Optional[Mapping[str, IoUTable]]
 def _check_extra(extra_rows: ExtraRows) -> dict[str, IoUTable]:
     out = dict(extra_rows or {})
     for label, t in out.items():
-        if not isinstance(t, IoUTable):
-            raise TypeError(f"extra_rows[{label!r}] must be a svr.evaluation.metrics.IoUTable, got {type(t).__name__}")
+        check_instance(t, f"extra_rows[{label!r}]", IoUTable, "a svr.evaluation.metrics.IoUTable")
     return out
 
 
@@ -242,8 +240,6 @@ def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
         rows.append(["ours (coarse)"] + [format_iou(coarse.rows[c].iou) for c in cols] + [format_iou(coarse.mean)])
     named = list(_check_extra(extra_rows).items())
     if result.baselines:
-        from svr.evaluation.baselines import LABELS
-
         named += [(LABELS[name], result.baseline_table(name)) for name in result.baselines]
     minus = result.minus_retrieval()
     if minus is not None:
@@ -267,8 +263,6 @@ def table_notes(result: EvaluationResult) -> list[str]:
         notes.append(f"Thinned run ({result.views_per_object} views per object or fewer objects): "
                      "not the benchmark protocol's number.")
     if result.baselines:
-        from svr.evaluation.baselines import DESCRIPTIONS, LABELS
-
         notes.append("Baselines, scored on the same images by the same protocol: " + "; ".join(
             f"{LABELS[n]}: {DESCRIPTIONS[n]}" for n in result.baselines) + ".")
     if result.is_nmr_shapenet:

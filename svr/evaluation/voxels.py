@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from typing import Union
 
+import numba
 import numpy as np
 import torch
 
+import renderer
 from sdfcommon.numerics.meshing import BoundLike, sdf_to_mesh
+from sdfcommon.tooling.checks import check_int, check_positive, check_shape, check_tensor
 
 # Objects are normalised into [-0.5, 0.5]^3 (longest side 1), where the outermost benchmark voxel
 # centres lie. A quarter voxel (1/31) beyond them keeps those centres inside and stays within the
@@ -32,11 +35,8 @@ def clip_to_box(values: torch.Tensor, bbox_min: BoundLike, bbox_max: BoundLike,
     Returns:
         a tensor like ``values`` (same shape, dtype and device).
     """
-    if not isinstance(values, torch.Tensor) or values.ndim not in (3, 4) or not values.is_floating_point():
-        raise ValueError(f"values must be a floating-point (B, Nx, Ny, Nz) or (Nx, Ny, Nz) tensor, got "
-                         f"{getattr(values, 'shape', type(values).__name__)}")
-    if not float(half) > 0:
-        raise ValueError(f"half must be positive, got {half!r}")
+    check_tensor(values, "values", "B, Nx, Ny, Nz", "Nx, Ny, Nz", floating=True)
+    half = check_positive(half, "half")
     lo = torch.as_tensor(bbox_min, dtype=values.dtype, device=values.device).expand(3)
     hi = torch.as_tensor(bbox_max, dtype=values.dtype, device=values.device).expand(3)
     axes = [torch.linspace(float(lo[a]), float(hi[a]), values.shape[-3 + a], dtype=values.dtype,
@@ -65,8 +65,7 @@ def nmr_voxel_centres(resolution: int = NMR_VOXEL_RESOLUTION, dtype: torch.dtype
     Returns:
         (R, R, R, 3) tensor: entry ``[i, j, k]`` is ``(x, y, z)`` of voxel ``vox[i, j, k]`` (world, y up).
     """
-    if not isinstance(resolution, int) or resolution < 2:
-        raise ValueError(f"resolution must be an int >= 2, got {resolution!r}")
+    check_int(resolution, "resolution", minimum=2)
     c = (resolution - 1) / 2.0
     n = torch.arange(resolution, dtype=dtype, device=device)
     s = (n - c) / (resolution - 1)
@@ -76,8 +75,7 @@ def nmr_voxel_centres(resolution: int = NMR_VOXEL_RESOLUTION, dtype: torch.dtype
 
 
 def _check_cube(voxels, name: str) -> None:
-    if voxels.ndim < 3 or not (voxels.shape[-1] == voxels.shape[-2] == voxels.shape[-3]):
-        raise ValueError(f"{name} must have shape (..., R, R, R), got {tuple(voxels.shape)}")
+    check_shape(voxels, name, "..., R, R, R")
 
 
 def nmr_to_xyz_voxels(voxels):
@@ -117,14 +115,11 @@ def voxels_to_sdf(voxels, pad: int = 2) -> tuple[np.ndarray, float, float]:
         values: (R + 2 pad,)^3 float64, ``values[a, b, c]`` at world ``(x_a, y_b, z_c)``;
         bbox_min, bbox_max: the scalar box of the samples (``-/+ (0.5 + pad / (R - 1))``).
     """
-    from scipy import ndimage
+    from scipy import ndimage  # heavy: only the voxel-to-SDF conversions need it
 
     v = np.asarray(voxels)
-    _check_cube(v, "voxels")
-    if v.ndim != 3:
-        raise ValueError(f"voxels must have shape (R, R, R), got {v.shape}")
-    if not isinstance(pad, int) or pad < 0:
-        raise ValueError(f"pad must be a non-negative int, got {pad!r}")
+    check_shape(v, "voxels", "R, R, R")
+    check_int(pad, "pad", minimum=0)
     r = v.shape[0]
     occ = np.pad(np.ascontiguousarray(nmr_to_xyz_voxels(v.astype(bool))), pad)
     size = 1.0 / (r - 1)
@@ -149,7 +144,7 @@ def fill_enclosed(voxels) -> np.ndarray:
     Returns:
         (..., R, R, R) bool numpy array.
     """
-    from scipy import ndimage
+    from scipy import ndimage  # heavy: only the voxel-to-SDF conversions need it
 
     v = np.asarray(voxels).astype(bool)
     _check_cube(v, "voxels")
@@ -215,8 +210,6 @@ def _rasterizer():
     """The numba-compiled triangle rasteriser (compiled on first use, cached on disk)."""
     global _rasterize_triangles
     if _rasterize_triangles is None:
-        import numba
-
         _rasterize_triangles = numba.njit(cache=True)(_rasterize_triangles_py)
     return _rasterize_triangles
 
@@ -240,17 +233,15 @@ def voxelize_mesh_nmr(vertices, faces, resolution: int = NMR_VOXEL_RESOLUTION) -
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
-    if v.ndim != 2 or v.shape[1] != 3:
-        raise ValueError(f"vertices must have shape (V, 3), got {v.shape}")
-    if f.ndim != 2 or f.shape[1] != 3 or (f.size and not np.issubdtype(f.dtype, np.integer)):
-        raise ValueError(f"faces must be an (F, 3) integer array, got shape {f.shape} dtype {f.dtype}")
+    check_shape(v, "vertices", "V, 3")
+    check_shape(f, "faces", "F, 3")
+    if f.size and not np.issubdtype(f.dtype, np.integer):
+        raise TypeError(f"faces must be an integer array, got {f.dtype}")
     if f.size and (f.min() < 0 or f.max() >= len(v)):
         raise ValueError(f"faces index vertices out of range [0, {len(v)})")
     if not np.isfinite(v).all():
         raise ValueError("vertices contains NaN or Inf")
-    if not isinstance(resolution, int) or resolution < 2:
-        raise ValueError(f"resolution must be an int >= 2, got {resolution!r}")
-    r = resolution
+    r = check_int(resolution, "resolution", minimum=2)
     u = v * (r - 1) + r / 2.0
     surf = np.zeros((r, r, r), dtype=np.uint8)
     if len(f):
@@ -295,10 +286,7 @@ def voxelize_sdf_direct(values: torch.Tensor, bbox_min: BoundLike = -1.0, bbox_m
     Returns:
         (B, R, R, R) or (R, R, R) bool tensor in the NMR frame, on values' device.
     """
-    import renderer
-
-    if not isinstance(values, torch.Tensor):
-        raise TypeError(f"values must be a torch.Tensor, got {type(values).__name__}")
+    check_tensor(values, "values")
     squeeze = values.ndim == 3
     grid = renderer.SDFGrid(values.detach().float() if values.dtype not in (torch.float32, torch.float64)
                             else values.detach(), bbox_min, bbox_max)

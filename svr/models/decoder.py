@@ -7,7 +7,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from svr.models._checks import check_channels, check_positive, check_positive_int
+from sdfcommon.tooling.checks import check_int, check_int_sequence, check_positive, check_shape
 
 
 def sphere_template(resolution: int, half_side: float, radius: float, axis: torch.Tensor | None = None) -> torch.Tensor:
@@ -88,8 +88,7 @@ def upsample2_centres(values: torch.Tensor) -> torch.Tensor:
     0.25 x[i+1]``. Three separable passes of elementwise work, so on a CPU its forward + backward is
     several times faster than ``upsample_grid``'s dense matrices or ``F.interpolate``
     (docs/measurements.md)."""
-    if values.ndim != 4 or min(values.shape[1:]) < 2:
-        raise ValueError(f"values must have shape (B, n, n, n) with n >= 2, got {tuple(values.shape)}")
+    check_shape(values, "values", "B, nx, ny, nz", at_least={"nx": 2, "ny": 2, "nz": 2})
     return _Upsample2Centres.apply(values)
 
 
@@ -140,14 +139,14 @@ class SDFDecoder(nn.Module):
         upsampling: str = "corners",
     ) -> None:
         super().__init__()
-        check_positive_int(latent_dim, "latent_dim")
+        check_int(latent_dim, "latent_dim", minimum=1)
         if head_stride not in (1, 2):
             raise ValueError(f"head_stride must be 1 or 2, got {head_stride!r}")
         if upsampling not in UPSAMPLING:
             raise ValueError(f"upsampling must be one of {UPSAMPLING}, got {upsampling!r}")
-        check_positive_int(base_resolution, "base_resolution")
-        check_positive_int(grid_resolution, "grid_resolution")
-        channels = check_channels(channels, "channels")
+        check_int(base_resolution, "base_resolution", minimum=1)
+        check_int(grid_resolution, "grid_resolution", minimum=1)
+        channels = check_int_sequence(channels, "channels", minimum=1)
         self.half_side = check_positive(half_side, "half_side")
         self.output_bound = check_positive(output_bound, "output_bound")
         if not 0 <= float(template_radius) < self.half_side:
@@ -198,8 +197,7 @@ class SDFDecoder(nn.Module):
 
     def forward(self, latent: torch.Tensor) -> torch.Tensor:
         """latent: (B, latent_dim) -> (B, N, N, N) SDF (world units) in renderer.SDFGrid's layout."""
-        if latent.ndim != 2 or latent.shape[1] != self.latent_dim:
-            raise ValueError(f"latent must have shape (B, {self.latent_dim}), got {tuple(latent.shape)}")
+        check_shape(latent, "latent", f"B, {self.latent_dim}")
         r = self.base_resolution
         x = F.relu(self.fc_norm(self.fc(latent)))
         x = x.view(latent.shape[0], self.channels[0], r, r, r).contiguous(memory_format=torch.channels_last_3d)

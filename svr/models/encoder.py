@@ -6,7 +6,7 @@ from typing import Sequence
 import torch
 from torch import nn
 
-from svr.models._checks import check_channels, check_positive_int
+from sdfcommon.tooling.checks import check_int, check_int_sequence, check_shape
 
 
 class ImageEncoder(nn.Module):
@@ -37,12 +37,12 @@ class ImageEncoder(nn.Module):
         batch_norm: bool = True,
     ) -> None:
         super().__init__()
-        check_positive_int(in_channels, "in_channels")
-        check_positive_int(image_size, "image_size")
-        check_positive_int(latent_dim, "latent_dim")
-        check_positive_int(kernel_size, "kernel_size")
-        channels = check_channels(channels, "channels")
-        fc_dims = check_channels(fc_dims, "fc_dims", allow_empty=True)
+        check_int(in_channels, "in_channels", minimum=1)
+        check_int(image_size, "image_size", minimum=1)
+        check_int(latent_dim, "latent_dim", minimum=1)
+        check_int(kernel_size, "kernel_size", minimum=1)
+        channels = check_int_sequence(channels, "channels", minimum=1)
+        fc_dims = check_int_sequence(fc_dims, "fc_dims", minimum=1, allow_empty=True)
         if kernel_size % 2 == 0:
             raise ValueError(f"kernel_size must be odd, got {kernel_size}")
         side = image_size
@@ -77,8 +77,5 @@ class ImageEncoder(nn.Module):
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
         """images: (B, C, H, W) float in [0, 1] -> (B, latent_dim) codes."""
-        if images.ndim != 4 or images.shape[1:] != (self.in_channels, self.image_size, self.image_size):
-            raise ValueError(
-                f"images must have shape (B, {self.in_channels}, {self.image_size}, {self.image_size}), "
-                f"got {tuple(images.shape)}")
+        check_shape(images, "images", f"B, {self.in_channels}, {self.image_size}, {self.image_size}")
         return self.fc(self.convs(images))

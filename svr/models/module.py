@@ -30,6 +30,7 @@ import torch
 
 import renderer
 
+from sdfcommon.tooling.checks import check_instance, check_int
 from svr.inference.checkpoints import CHECKPOINT_KEY, check_stage
 from svr.data.types import SVRBatch
 from svr.distributed import gather_unique
@@ -81,16 +82,11 @@ class SVRLightningModule(pl.LightningModule):
         model_config: Optional[dict] = None,
     ) -> None:
         super().__init__()
-        if not isinstance(net, SVRNet):
-            raise TypeError(f"net must be an SVRNet, got {type(net).__name__}")
-        if not isinstance(loss_weights, LossWeights):
-            raise TypeError(f"loss_weights must be a LossWeights, got {type(loss_weights).__name__}")
-        if not isinstance(scene, renderer.Scene):
-            raise TypeError(f"scene must be a renderer.Scene, got {type(scene).__name__}")
-        if not isinstance(trace_settings, renderer.TraceSettings):
-            raise TypeError(f"trace_settings must be a renderer.TraceSettings, got {type(trace_settings).__name__}")
-        if isinstance(render_size, bool) or not isinstance(render_size, int) or render_size <= 0:
-            raise ValueError(f"render_size must be a positive int, got {render_size!r}")
+        check_instance(net, "net", SVRNet, "an SVRNet")
+        check_instance(loss_weights, "loss_weights", LossWeights)
+        check_instance(scene, "scene", renderer.Scene, "a renderer.Scene")
+        check_instance(trace_settings, "trace_settings", renderer.TraceSettings, "a renderer.TraceSettings")
+        check_int(render_size, "render_size", minimum=1)
         self.net = net
         self.stage = check_stage(stage)
         self.loss_weights = loss_weights

@@ -8,6 +8,7 @@ from torch import nn
 
 import renderer
 
+from sdfcommon.tooling.checks import check_instance, check_positive
 from svr.models.decoder import SDFDecoder
 from svr.models.encoder import ImageEncoder
 from svr.models.refiner import BlockRefiner, SDFRefiner
@@ -47,10 +48,8 @@ class SVRNet(nn.Module):
         super().__init__()
         for name, mod, cls in (("encoder", encoder, ImageEncoder), ("decoder", decoder, SDFDecoder),
                                ("refiner", refiner, BlockRefiner)):
-            if not isinstance(mod, nn.Module):
-                raise TypeError(f"{name} must be an nn.Module ({cls.__name__}), got {type(mod).__name__}")
-        if not float(half_side) > 0:
-            raise ValueError(f"half_side must be positive, got {half_side!r}")
+            check_instance(mod, name, nn.Module, f"an nn.Module ({cls.__name__})")
+        check_positive(half_side, "half_side")
         if float(half_side) <= 0.5:
             raise ValueError(f"half_side must exceed 0.5 so the normalised objects fit, got {half_side!r}")
         for name, mod in (("decoder", decoder), ("refiner", refiner)):

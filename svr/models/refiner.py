@@ -1,5 +1,4 @@
-"""Refiners: coarse SDF grid -> refined SDF grid (3D conv encoder-decoders with skip connections).
-
+"""Refiners: coarse SDF grid -> refined SDF grid (3D conv encoder-decoders with skip connections);
 SDFRefiner works at the grid's side (or half of it); BlockRefiner at a quarter of it (the default).
 """
 from __future__ import annotations
@@ -10,7 +9,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from svr.models._checks import check_channels, check_positive, check_positive_int
+from sdfcommon.tooling.checks import check_int, check_int_sequence, check_positive, check_shape
 from svr.models.decoder import upsample2_centres
 
 
@@ -64,14 +63,13 @@ def _run_unet(x: torch.Tensor, down: nn.ModuleList, ups: nn.ModuleList, merges: 
 
 
 def _check_input(sdf: torch.Tensor, n: int) -> None:
-    if sdf.ndim != 4 or sdf.shape[1:] != (n, n, n):
-        raise ValueError(f"sdf must have shape (B, {n}, {n}, {n}), got {tuple(sdf.shape)}")
+    check_shape(sdf, "sdf", f"B, {n}, {n}, {n}")
 
 
 def _check_common(channels, grid_resolution, convs_per_level, half_side, residual_bound):
-    channels = check_channels(channels, "channels")
-    check_positive_int(grid_resolution, "grid_resolution")
-    check_positive_int(convs_per_level, "convs_per_level")
+    channels = check_int_sequence(channels, "channels", minimum=1)
+    check_int(grid_resolution, "grid_resolution", minimum=1)
+    check_int(convs_per_level, "convs_per_level", minimum=1)
     return channels, check_positive(half_side, "half_side"), check_positive(residual_bound, "residual_bound")
 
 
@@ -114,8 +112,7 @@ class SDFRefiner(nn.Module):
         super().__init__()
         channels, self.half_side, self.residual_bound = _check_common(
             channels, grid_resolution, convs_per_level, half_side, residual_bound)
-        if isinstance(fc_dim, bool) or not isinstance(fc_dim, int) or fc_dim < 0:
-            raise ValueError(f"fc_dim must be a non-negative int, got {fc_dim!r}")
+        check_int(fc_dim, "fc_dim", minimum=0)
         if input_stride not in (1, 2):
             raise ValueError(f"input_stride must be 1 or 2, got {input_stride!r}")
         levels = len(channels)
@@ -160,17 +157,17 @@ class SDFRefiner(nn.Module):
 def fold_blocks(grid: torch.Tensor) -> torch.Tensor:
     """Space to depth: (B, 2q, 2q, 2q) -> (B, 8, q, q, q), the voxel ``(2i+a, 2j+c, 2k+e)`` going to
     channel ``4a + 2c + e`` of site ``(i, j, k)``."""
-    if grid.ndim != 4 or grid.shape[1] % 2 or len(set(grid.shape[1:])) != 1:
+    sizes = check_shape(grid, "grid", "B, M, M, M")
+    if sizes["M"] % 2:
         raise ValueError(f"grid must have shape (B, M, M, M) with M even, got {tuple(grid.shape)}")
-    b, q = grid.shape[0], grid.shape[1] // 2
+    b, q = sizes["B"], sizes["M"] // 2
     return grid.reshape(b, q, 2, q, 2, q, 2).permute(0, 2, 4, 6, 1, 3, 5).reshape(b, 8, q, q, q)
 
 
 def unfold_blocks(blocks: torch.Tensor) -> torch.Tensor:
     """Depth to space, the inverse of ``fold_blocks``: (B, 8, q, q, q) -> (B, 2q, 2q, 2q)."""
-    if blocks.ndim != 5 or blocks.shape[1] != 8 or len(set(blocks.shape[2:])) != 1:
-        raise ValueError(f"blocks must have shape (B, 8, q, q, q), got {tuple(blocks.shape)}")
-    b, q = blocks.shape[0], blocks.shape[2]
+    sizes = check_shape(blocks, "blocks", "B, 8, q, q, q")
+    b, q = sizes["B"], sizes["q"]
     return blocks.reshape(b, 2, 2, 2, q, q, q).permute(0, 4, 1, 5, 2, 6, 3).reshape(b, 2 * q, 2 * q, 2 * q)
 
 

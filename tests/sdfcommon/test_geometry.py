@@ -38,7 +38,7 @@ def test_a_shape_cut_by_the_box_is_closed_there_unless_asked_not_to():
 
 def test_no_crossing_gives_an_empty_mesh_and_bad_grids_are_refused():
     assert len(sdf_to_mesh(torch.ones(4, 4, 4)).faces) == 0
-    with pytest.raises(ValueError, match="values must be an"):
+    with pytest.raises(ValueError, match=r"values must have shape \(Nx, Ny, Nz\) with Nx, Ny, Nz >= 2"):
         sdf_to_mesh(np.zeros((4, 4)))
     with pytest.raises(ValueError, match="NaN or Inf"):
         sdf_to_mesh(np.full((3, 3, 3), np.nan))

@@ -1,17 +1,13 @@
-"""Analytic signed distance functions of CSG shapes: a small program of primitives and set operations.
-
-A shape is a left-deep CSG program: ``d = prim_0``, then for each later row
-``d = op(d, prim_i)`` with op union (min), subtract (``max(d, -prim)``) or intersect (max). Every
-primitive is exact (its SDF is the Euclidean distance); the set operations keep a lower bound of the
-distance (outside the shape the value never exceeds the true distance), so sphere tracing with it
-never steps through the surface.
-
-Two evaluators of the same program: ``CSGShape.sdf`` in PyTorch (the reference, differentiable) and a
-numba kernel (``sdf_numpy``, ``trace_rays``, ``surface_normals``) for the renders of the procedural
-dataset; tests/svr/test_procedural.py checks that they agree.
-
-Frames: world coordinates, y up. ``CSGShape.scale`` and ``CSGShape.offset`` map the program's own
-frame to the world: ``sdf_world(p) = scale * sdf_program(p / scale + offset)``.
+"""Analytic signed distance functions of CSG shapes: a small program of primitives and set
+operations. A shape is a left-deep CSG program: ``d = prim_0``, then for each later row ``d = op(d,
+prim_i)`` with op union (min), subtract (``max(d, -prim)``) or intersect (max). Every primitive is
+exact (its SDF is the Euclidean distance); the set operations keep a lower bound of the distance
+(outside the shape the value never exceeds the true distance), so sphere tracing with it never steps
+through the surface. Two evaluators of the same program: ``CSGShape.sdf`` in PyTorch (the reference,
+differentiable) and a numba kernel (``sdf_numpy``, ``trace_rays``, ``surface_normals``) for the
+renders of the procedural dataset; tests/svr/test_procedural.py checks that they agree. Frames:
+world coordinates, y up. ``CSGShape.scale`` and ``CSGShape.offset`` map the program's own frame to
+the world: ``sdf_world(p) = scale * sdf_program(p / scale + offset)``.
 """
 from __future__ import annotations
 
@@ -24,6 +20,7 @@ import numpy as np
 import torch
 
 import renderer
+from sdfcommon.tooling.checks import check_shape
 
 # The parallel kernels below share numba's process-wide thread pool with the renderer's march,
 # which must start it itself (its layer cannot change later; renderer.start_cpu_thread_pool says why).
@@ -69,12 +66,11 @@ class CSGShape:
 
     def __post_init__(self) -> None:
         prog = np.ascontiguousarray(np.asarray(self.program, dtype=np.float64))
-        if prog.ndim != 2 or prog.shape[1] != ROW or prog.shape[0] < 1:
-            raise ValueError(f"program must have shape (P >= 1, {ROW}), got {prog.shape}")
+        check_shape(prog, "program", f"P, {ROW}", at_least={"P": 1})
         if not np.isfinite(prog).all():
             raise ValueError("program contains NaN or Inf")
-        if not self.scale > 0:
-            raise ValueError(f"scale must be positive, got {self.scale}")
+        if not self.scale > 0:  # inf is allowed: a shape may be any size
+            raise ValueError(f"scale must be > 0, got {self.scale!r}")
         prog = prog.copy()
         for row in prog:
             row[19] = float(np.linalg.norm(_local_half_extents(int(row[0]), row[_P])))

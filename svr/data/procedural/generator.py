@@ -26,12 +26,14 @@ reuses it afterwards.
 from __future__ import annotations
 
 import dataclasses
+import fcntl
 import functools
 import hashlib
 import json
 import math
 import os
 import shutil
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Union
@@ -39,10 +41,16 @@ from typing import Optional, Union
 import numba
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
+import renderer
 from renderer import NMR_NUM_VIEWS as NUM_VIEWS
-
-from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres
+from renderer import shade_lambert
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.outputs import remove_stale_temporaries, write_json, write_npz
+from sdfcommon.tooling.processes import process_pool
+from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
+from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxelize_sdf_protocol
 from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
                          make_shape, procedural_category, style_of)
 from svr.data.procedural.csg import CSGShape, surface_normals, trace_rays
@@ -76,8 +84,6 @@ def object_seed(seed: int, category_id: str, split: str, index: int) -> list[int
 @functools.lru_cache(maxsize=4)
 def _nmr_rays(image_size: int, num_views: int = NUM_VIEWS) -> tuple[np.ndarray, np.ndarray]:
     """Eyes (V, 3) and unit ray directions (V, H, W, 3), float64, of the NMR cameras."""
-    import renderer
-
     cams = renderer.Cameras.nmr(list(range(num_views)), image_size=image_size, dtype=torch.float64)
     _, d = cams.rays()
     return cams.eye.numpy().copy(), d.numpy().copy()
@@ -126,11 +132,7 @@ def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, super
     Returns:
         (V, 4, H, W) uint8 RGBA: RGB composited on the background, alpha = coverage.
     """
-    from renderer import shade_lambert
-
-    if not isinstance(supersample, int) or supersample < 1:
-        raise ValueError(f"supersample must be a positive int, got {supersample!r}")
-    s = supersample
+    s = check_int(supersample, "supersample", minimum=1)
     eyes, dirs = _nmr_rays(image_size, num_views)
     _, sub_dirs = _nmr_rays(image_size * s, num_views)
     v, h, w = dirs.shape[:3]
@@ -216,8 +218,6 @@ def voxelize_shape(shape: CSGShape, resolution: int = NMR_VOXEL_RESOLUTION, rule
         pts = nmr_voxel_centres(resolution, dtype=torch.float64).numpy()
         return shape.sdf_numpy(pts) < 0.0
     if rule == "protocol":
-        from svr.evaluation.voxels import voxelize_sdf_protocol
-
         half = 0.5 + 2.0 / (resolution - 1)
         axis = np.linspace(-half, half, mesh_resolution)
         values = shape.sdf_numpy(np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1))
@@ -262,15 +262,11 @@ class ProceduralSettings:
             raise ValueError(f"categories must not repeat, got {list(cats)}")
         object.__setattr__(self, "categories", names)
         for split in SPLITS:
-            n = getattr(self, split)
-            if not isinstance(n, int) or isinstance(n, bool) or n < 0:
-                raise ValueError(f"{split} must be a non-negative int (objects per category), got {n!r}")
+            check_int(getattr(self, split), f"{split} (objects per category)", minimum=0)
         if self.train == self.val == self.test == 0:
             raise ValueError("train, val and test are all 0: the dataset would hold no objects")
-        if not isinstance(self.supersample, int) or isinstance(self.supersample, bool) or self.supersample < 1:
-            raise ValueError(f"supersample must be a positive int, got {self.supersample!r}")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
-            raise ValueError(f"seed must be an int, got {self.seed!r}")
+        check_int(self.supersample, "supersample", minimum=1)
+        check_int(self.seed, "seed")
         if self.voxel_rule not in VOXEL_RULES:
             raise ValueError(f"voxel_rule must be one of {VOXEL_RULES}, got {self.voxel_rule!r}")
 
@@ -358,8 +354,6 @@ class _Chunk:
 
 def _make_chunk(chunk: _Chunk, settings: ProceduralSettings, shading: ShadingModel) -> tuple[np.ndarray, np.ndarray]:
     """Renders and voxelises one chunk: ((n, 24, 4, 64, 64) uint8, (n, 32, 32, 32) bool)."""
-    from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE
-
     n = chunk.stop - chunk.start
     images = np.zeros((n, *IMAGE_SHAPE), dtype=np.uint8)
     voxels = np.zeros((n, *VOXEL_SHAPE), dtype=bool)
@@ -379,8 +373,6 @@ def _worker_init() -> None:
 def _open_arrays(folder: Path, settings: ProceduralSettings) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
     """The (images, voxels) .npy memory maps of every category and split in a partial folder,
     created on first use (their final names: they become the prepared arrays of ``prepare_nmr``)."""
-    from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
-
     arrays = {}
     for cid, _ in settings.category_pairs():
         for split in SPLITS:
@@ -412,16 +404,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
     Returns:
         the folder.
     """
-    import fcntl
-
-    from tqdm.auto import tqdm
-
-    from sdfcommon.tooling.outputs import remove_stale_temporaries, write_json, write_npz
-
-    from svr.data.nmr import nmr_file
-
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
-        raise ValueError(f"workers must be an int >= 0, got {workers!r}")
+    check_int(workers, "workers", minimum=0)
     out = Path(out_dir)
     if out.exists():
         raise FileExistsError(f"{out} already exists; remove it or use ensure_procedural_dataset")
@@ -476,10 +459,6 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
             for chunk in todo:
                 store(chunk, _make_chunk(chunk, settings, shading))
         else:
-            from concurrent.futures import FIRST_COMPLETED, wait
-
-            from sdfcommon.tooling.processes import process_pool
-
             with process_pool(workers, initializer=_worker_init) as pool:  # workers die with this process
                 queue = list(reversed(todo))
                 running = {}
