@@ -23,6 +23,7 @@ from hydra.utils import instantiate
 
 from benchmarks.report import Point, progress_log, timed, tradeoff_section
 from sdfcommon.tooling.commands import compose
+from sdfcommon.tooling.settings import build_settings
 from svr.training.stages import train
 
 CATEGORIES = ("chair", "table", "airplane", "mug")
@@ -150,7 +151,7 @@ def measure(run: Run, work: Path, data: Sequence[str], steps: tuple[int, int], v
     clock = run_dir / "timeline.jsonl"
     cfg = compose_train(run_overrides(run, data, steps, val_every, clock, quick))
     start_wall, start_cpu = time.time(), time.process_time()
-    t = timed(lambda: train(cfg, run_dir))
+    t = timed(lambda: train(build_settings(cfg), run_dir))
     events = read_timeline(clock, start_wall, start_cpu)
     ends = {e["stage"]: e for e in events if e["event"] == "end"}
     curve = [(e["train_cpu"], 1.0 - e["iou"]) for e in events if e["event"] == "val" and e["iou"] is not None]

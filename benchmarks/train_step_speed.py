@@ -129,7 +129,14 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     from hydra.utils import instantiate
 
     from svr import losses
-    from svr.training.stages import build_module
+    try:  # this checkout's layout: modules built from typed settings
+        from sdfcommon.tooling.settings import build_settings
+        from svr.training.stages import build_module
+    except ImportError:  # an older checkout (--baseline): built from the composed config
+        from svr.training import build_module
+
+        def build_settings(cfg):
+            return cfg
 
     device = torch.device(device_name)
     with initialize_config_dir(config_dir=str(Path(sys.modules["svr"].__file__).resolve().parents[1] / "configs"),
@@ -143,7 +150,8 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     it = iter(loader)
     batch = next(it).to(device)
     net = instantiate(cfg.model).to(device)
-    module = build_module(cfg, net, "joint", dm).to(device)
+    settings = build_settings(cfg)
+    module = build_module(settings, net, "joint", dm).to(device)
     module.train()
     images = batch.images[:, 0]
     hs, h = net.half_side, net.voxel_size
@@ -198,7 +206,7 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
                regularisers=regularisers, optimiser=optimiser)
     if stages:
         for stage in ("coarse", "refine", "joint"):
-            mod = build_module(cfg, net, stage, dm).to(device)
+            mod = build_module(settings, net, stage, dm).to(device)
             mod.train()
             stage_opt = mod.optimizer_factory([p for p in mod.parameters() if p.requires_grad])
 

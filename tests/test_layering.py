@@ -187,13 +187,6 @@ def test_the_check_catches_each_kind_of_violation(tmp_path):
 # ------------------------------------------------------------------------------------------------
 # Import cycles between the files of one package
 
-# TEMPORARY allow-list: import cycles in files whose owners are still moving them (the architecture
-# clean-up), each as the sorted modules of its group. Empty it as those files are fixed.
-KNOWN_CYCLES_TO_FIX: frozenset[tuple[str, ...]] = frozenset({
-    ("renderer.kernels", "renderer.stage2", "renderer.trace"),
-})
-
-
 def module_graph(root: Path = REPO) -> dict[str, dict[str, list[Import]]]:
     """{module: {module of the same package it imports: [imports]}} over the files of ``PACKAGES``.
 
@@ -289,10 +282,7 @@ def file_cycles(root: Path = REPO) -> dict[tuple[str, ...], str]:
 def test_no_import_cycles_between_the_files_of_a_package():
     found = file_cycles()
     print("\nimport cycles between files:" + "".join(f"\n  {line}" for line in found.values()) if found else "")
-    unexpected = [line for modules, line in found.items() if modules not in KNOWN_CYCLES_TO_FIX]
-    fixed = sorted(KNOWN_CYCLES_TO_FIX - set(found))
-    assert not unexpected, "files that import each other (move what both need below both):\n" + "\n".join(unexpected)
-    assert not fixed, f"no longer cycles: take them off KNOWN_CYCLES_TO_FIX: {fixed}"
+    assert not found, "files that import each other (move what both need below both):\n" + "\n".join(found.values())
 
 
 def test_the_cycle_check_finds_a_known_cycle_and_passes_an_acyclic_tree(tmp_path):

@@ -40,7 +40,6 @@ from svr.data.procedural.generator import (DEFAULT_SHADING, ProceduralSettings, 
 from svr.data.types import ShadingModel, collate_batch
 
 PathLike = str | os.PathLike
-REPO_ROOT = Path(__file__).resolve().parents[2]
 
 
 class RankShardedSampler(DistributedSampler):
@@ -428,7 +427,7 @@ class ProceduralDataModule(NMRDataModule):
     ``<cache_dir>/procedural-<hash of the settings>`` and reused afterwards.
 
     Args:
-        cache_dir: where generated datasets live; a relative path is taken from the repository root.
+        cache_dir: where generated datasets live; a relative path is taken from the working directory.
         categories: procedural category names or ids (default: the 13 NMR ShapeNet categories).
         train, val, test: objects per category and split.
         data_seed: the dataset's seed (which objects); ``seed`` seeds the training draws.
@@ -453,7 +452,7 @@ class ProceduralDataModule(NMRDataModule):
         self.settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample,
                                            voxel_rule)
         cache = Path(cache_dir).expanduser()
-        self.cache_dir = cache if cache.is_absolute() else REPO_ROOT / cache
+        self.cache_dir = cache.resolve()  # relative: from the working directory, as every path of a command
         self._init_common(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
                           val_views, val_objects_per_category, num_workers, pin_memory, seed, "composite",
                           None, False)

@@ -356,7 +356,8 @@ def test_make_procedural_script_reuses_the_cache(tiny_procedural, capsys):
     assert str(root) in capsys.readouterr().out
 
 
-def test_relative_cache_dir_is_taken_from_the_repository_root():
+def test_relative_cache_dir_is_taken_from_the_working_directory(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
     dm = ProceduralDataModule(cache_dir="data/cache", train=1, val=1, test=1, progress=False)
-    assert dm.cache_dir == REPO / "data" / "cache" and dm.root.parent == REPO / "data" / "cache"
+    assert dm.cache_dir == tmp_path / "data" / "cache" and dm.root.parent == tmp_path / "data" / "cache"
     assert os.path.basename(dm.root).startswith("procedural-")
