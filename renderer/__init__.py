@@ -1,22 +1,14 @@
-"""A differentiable renderer for signed distance fields sampled on grids (SDFDiff, CVPR 2020).
-
-Sphere tracing finds where rays meet the surface without gradients; only the local shading at the
-hits (and the soft silhouettes) is differentiable. Both stages run as fused numba kernels (CPU or
-CUDA, ``renderer.fused`` over ``renderer.kernels``) where available; their plain-PyTorch versions
-(``renderer.reference``, ``renderer.shading``) are the specification, used by
-``backend="reference"`` and as the fallback; ``renderer.backends`` chooses.
-
-    >>> import torch, renderer
-    >>> grid = renderer.SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 64)
-    >>> cams = renderer.Cameras.look_at(eye=[[0.0, 0.0, 3.0]], fov_deg=40, image_size=128)
-    >>> out = renderer.render(grid, cams, renderer.Scene(effects=("silhouette", "shading")))
-    >>> out.image.shape, out.depth is None
-    (torch.Size([1, 128, 128, 3]), True)
-
-Importing the package asks PyTorch to back large CPU tensors with transparent huge pages
-(``THP_MEM_ALLOC_ENABLE=1``, unless the variable is already set; ``0`` turns it off): a render's
-gradient is a fresh grid-sized buffer every backward pass, and zeroing it is several times faster
-with huge pages than with 4 KiB pages (docs/measurements.md).
+"""A differentiable renderer for signed distance fields sampled on grids (SDFDiff, CVPR 2020), and
+its public API (``__all__``): sphere tracing finds where rays meet the surface without gradients,
+and only the local shading at the hits (and the soft silhouettes) is differentiable. Both stages
+run as fused numba kernels (CPU or CUDA, ``renderer.fused`` over ``renderer.kernels``) where
+available; their plain-PyTorch versions (``renderer.reference``, ``renderer.shading``) are the
+specification, used by ``backend="reference"`` and as the fallback, and ``renderer.backends``
+chooses. Importing the package sets ``THP_MEM_ALLOC_ENABLE=1`` unless the variable is already set
+(``0`` turns it off), so that PyTorch backs large CPU tensors with transparent huge pages: a
+render's gradient is a fresh grid-sized buffer every backward pass, and zeroing it is several
+times faster with huge pages than with 4 KiB pages (docs/measurements.md). Examples and the
+details: README.md and docs/renderer.md.
 """
 import os as _os
 

@@ -1,21 +1,14 @@
-"""Batched pinhole cameras and the coordinate conventions of the whole project.
-
-Conventions (this is the one place that documents them):
-
-* World: right-handed, y up. Objects of the benchmarks live around the origin.
-* A camera is an eye position and three orthonormal world vectors: ``forward`` (viewing direction),
-  ``right`` (the image's +column direction) and ``up`` (the image's -row direction).
-* Images are (H, W); row 0 is the top, column 0 the left; rays go through pixel centres:
-  pixel (r, c) looks along ``forward + sx * tan(fov/2) * aspect * right + sy * tan(fov/2) * up``
-  with ``sx = (2 (c + 0.5) / W - 1)``, ``sy = (1 - 2 (r + 0.5) / H)`` and ``aspect = W / H``;
-  ``fov`` is the full vertical field of view.
-* ``Cameras.look_at`` builds the usual right-handed camera: ``right = forward x up``, so a camera on
-  +z looking at the origin sees world +x to the right of the image.
-* ``Cameras.nmr`` reproduces the NMR ShapeNet renders (Kato et al.): eye at elevation 30 degrees,
-  distance 2.732, azimuth ``-15 k`` degrees for view k, ``eye = (d cos e sin a, d sin e, -d cos e cos a)``,
-  full FOV 30 degrees, and the benchmark's left-handed axes ``z_c = normalize(at - eye)``,
-  ``x_c = normalize(up x z_c)``, ``y_c = z_c x x_c``: here ``right = x_c`` (the mirror image of
-  ``look_at``), ``up = y_c``.
+"""Batched pinhole cameras (``Cameras``) and the coordinate conventions of the whole project, which
+this is the one place to document. The world is right-handed with y up, and the benchmarks' objects
+live around the origin. A camera is an eye position and three orthonormal world vectors:
+``forward`` (the viewing direction), ``right`` (the image's +column direction) and ``up`` (the
+image's -row direction). Images are (H, W), row 0 at the top and column 0 on the left, and rays go
+through pixel centres: pixel (r, c) looks along
+``forward + sx * tan(fov/2) * aspect * right + sy * tan(fov/2) * up`` with
+``sx = 2 (c + 0.5) / W - 1``, ``sy = 1 - 2 (r + 0.5) / H`` and ``aspect = W / H``, where ``fov``
+is the full vertical field of view. ``Cameras.look_at`` builds right-handed cameras and
+``Cameras.nmr`` the NMR ShapeNet benchmark's left-handed ones, the mirror image; their docstrings
+give the axes.
 """
 from __future__ import annotations
 
@@ -93,7 +86,8 @@ class Cameras:
         dtype: torch.dtype = torch.float32,
         device: Union[str, torch.device] = "cpu",
     ) -> "Cameras":
-        """Right-handed look-at cameras.
+        """Right-handed look-at cameras: ``right = forward x up``, so a camera on +z looking at the
+        origin sees world +x to the right of the image.
 
         Args:
             eye: (3,) or (B, 3) camera positions (world).
@@ -116,7 +110,13 @@ class Cameras:
     ) -> "Cameras":
         """The NMR ShapeNet benchmark cameras for view indices (B,) (0..23 for the dataset's views).
 
-        Fractional view indices are allowed (azimuth ``-15 * view`` degrees).
+        They reproduce the NMR ShapeNet renders (Kato et al.): the eye at elevation e
+        (``elevation_deg``, 30 degrees), distance d (``distance``, 2.732) and azimuth a = ``-15 k``
+        degrees for view k, ``eye = (d cos e sin a, d sin e, -d cos e cos a)``, a full field of view
+        of 30 degrees, and the benchmark's left-handed axes ``z_c = normalize(at - eye)``,
+        ``x_c = normalize(up x z_c)``, ``y_c = z_c x x_c`` (``at`` the origin, ``up`` +y): here
+        ``right = x_c`` (the mirror image of ``look_at``) and ``up = y_c``. Fractional view indices
+        are allowed (azimuth ``-15 * view`` degrees).
         """
         v = torch.as_tensor(views, dtype=torch.float64).reshape(-1)
         if v.numel() == 0:

@@ -1,6 +1,6 @@
-"""A small render demo: a torus and a sphere, seen by a few cameras, written as PNGs.
-
-    python -m renderer.demo --out docs
+"""A small render demo, run as ``python -m renderer.demo [--out FOLDER]``: an SDF grid (64^3 by
+default) of a torus and a sphere seen by three cameras, written as one PNG (``render_demo.png``,
+a row per view: shading, normals, depth, soft silhouette) into the output folder, docs/ by default.
 """
 from __future__ import annotations
 
@@ -31,7 +31,8 @@ def save_png(path: Path, image: np.ndarray) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="example:\n  python -m renderer.demo --out docs")
     ap.add_argument("--out", default="docs", help="output folder (default: docs)")
     ap.add_argument("--resolution", type=int, default=64, help="SDF grid resolution")
     ap.add_argument("--image-size", type=int, default=192, help="image side in pixels")

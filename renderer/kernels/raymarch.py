@@ -1,31 +1,22 @@
 """The renderer's per-ray code, written once for numba, and the kernels built from it: the
-sphere-tracing march (stage 1) and, at the end of the file, the differentiable stage 2 (forward
-and backward; see the "stage 2" section).
-
-The march of one ray is renderer/reference.py's, step for step, in the grid's dtype: box
-entry/exit by the slab test, the sign at the start point, sphere tracing with the hit threshold,
-the closest approach of misses, the search for the deepest point behind hits, and the
-start-inside cases. It is written as a small state machine: ``ray_begin`` (box test),
-``ray_advance`` (takes one SDF sample, returns the ray's new state and where the next sample is
-due) and ``ray_extreme``. Both kernels drive those same routines: ``march_ray`` runs one ray to
-the end (the CUDA kernel, ``cuda_march_body``: one ray per thread, its state in registers), and
-the CPU kernel ``march_rays_cpu`` runs LANES rays interleaved per thread (``march_block``: a lone
-ray's samples are a chain of dependent cache misses, the lanes' are independent). Everything is
-scalar code on arrays, so the same ``@njit`` functions compile for both targets
-(``make_cuda_kernel`` compiles the CUDA body lazily, so this module imports on machines without a
-GPU).
-
-Every function the kernels call lives in this one file on purpose, both stages' alike: numba's
+sphere-tracing march (stage 1) and, in the "stage 2" section at the end, the differentiable
+shading (forward and backward). The march of one ray is renderer/reference.py's step for step:
+box entry and exit by the slab test, the sign at the start point, sphere tracing with the hit
+threshold, the closest approach of misses, the search for the deepest point behind hits and the
+start-inside cases, written as a small state machine (``ray_begin`` the box test, ``ray_advance``
+one SDF sample in and the ray's new state and next sample position out, ``ray_extreme``). Both
+kernels drive those routines: ``march_ray`` runs one ray to the end (the CUDA kernel,
+``cuda_march_body``, one ray per thread with its state in registers), and the CPU kernel
+``march_rays_cpu`` runs LANES rays interleaved per thread (``march_block``), because a lone ray's
+samples are a chain of dependent cache misses while the lanes' are independent. Everything is
+scalar code on arrays, so the same ``@njit`` functions compile for both targets, and
+``make_cuda_kernel`` compiles the CUDA body lazily so that the module imports on machines without
+a GPU. Every function the kernels call, of both stages, lives in this one file on purpose: numba's
 on-disk cache checks only the source file of the function it caches, so a helper in another file
-could change without invalidating the cached kernels.
-
-Arithmetic stays in the grid's dtype: float constants come from the ``params`` array (a Python
-float literal would promote float32 arithmetic to float64 and drift from the reference).
-
-``params`` (grid dtype) holds, at the indices below: bbox_min (3), bbox_max (3), voxel size (3),
-box centre (3), ``res - 1`` (3) and ``res - 2`` (3) as floats, then 0, 1, the tiny direction
-component, the threshold floor, the threshold scale, the fixed threshold and ``-inner_depth``.
-``iparams`` (int64): Nx, Ny, Nz, max_steps, inner_steps, whether the threshold is fixed.
+could change without invalidating the cached kernels. Arithmetic stays in the grid's dtype, with
+float constants taken from the ``params`` array (laid out beside its index constants below),
+since a Python float literal would promote float32 arithmetic to float64 and drift from the
+reference.
 """
 from __future__ import annotations
 
@@ -48,6 +39,11 @@ ray_helper = njit(inline="always", **_RAY_OPTIONS)
 # numba.cuda, imported by make_cuda_kernel() on first use only (it resolves when the body compiles).
 cuda = None
 
+# ``params`` (grid dtype) holds, from the indices below: bbox_min (3), bbox_max (3), the voxel
+# size (3), the box centre (3), ``res - 1`` (3) and ``res - 2`` (3) as floats, then 0, 1, the tiny
+# direction component, the threshold floor, the threshold scale, the fixed threshold and
+# ``-inner_depth``. ``iparams`` (int64): Nx, Ny, Nz, max_steps, inner_steps, whether the threshold
+# is fixed.
 # float parameters
 LO, HI, VOX, CENTRE, TOP, CELL_MAX = 0, 3, 6, 9, 12, 15
 ZERO, ONE, TINY, FLOOR, SCALE, FIXED, NEG_DEPTH = 18, 19, 20, 21, 22, 23, 24
