@@ -1,12 +1,11 @@
-"""The narrow-band eikonal and Laplacian terms as one fused CPU operation (numba).
-
-``sdfcommon.numerics.regularisers.band_regularisers`` is the specification: the same band (found with torch), the same
-7-point stencils and the same means; this computes them in one pass over the band's vertices and
-writes the backward as one scatter of each vertex's stencil weights into a zero grid, instead of
-autograd's gather, matrix product and index-put chain (several full-grid passes and temporaries).
-Sequential loops: the band holds a few percent of a grid's vertices (about 160k for a batch of 16
-64^3 grids), which one core covers in a millisecond or two, and no second thread pool competes
-with torch's.
+"""The narrow-band eikonal and Laplacian terms as one fused CPU operation (numba), whose
+specification is ``sdfcommon.numerics.regularisers.band_regularisers``: the same band (found with
+torch), the same 7-point stencils and the same means, computed here in one pass over the band's
+vertices, with the backward written as one scatter of each vertex's stencil weights into a zero
+grid instead of autograd's gather, matrix product and index-put chain (several full-grid passes
+and temporaries). The loops are sequential: the band holds a few percent of a grid's vertices
+(about 160k for a batch of 16 64^3 grids), which one core covers in a millisecond or two, and no
+second thread pool competes with torch's.
 """
 from __future__ import annotations
 

@@ -1,11 +1,11 @@
-"""Host memory allocation for long CPU runs (single-view training, multi-view reconstruction).
-
-A training step at the demo's size allocates and frees dozens of 4-16 MiB tensors (64^3 grids of
-a batch and their gradients). glibc serves blocks above its mmap threshold with fresh ``mmap``
-pages and returns them on free, so every such tensor pays a page fault per 4 KiB page on first
-touch, again on every step, a large part of a step's time on a CPU (docs/measurements.md). Raising the threshold to its
-maximum (32 MiB on 64-bit Linux) and never trimming the heap keeps those pages in the process
-and reuses them. The process keeps its peak heap size; blocks above 32 MiB are unaffected.
+"""Host memory allocation for long CPU runs (single-view training, multi-view reconstruction): a
+training step at the demo's size allocates and frees dozens of 4-16 MiB tensors (a batch's 64^3
+grids and their gradients), and glibc serves blocks above its mmap threshold with fresh ``mmap``
+pages that it returns on free, so every such tensor pays a page fault per 4 KiB page on first
+touch, again on every step, a large part of a step's time on a CPU (docs/measurements.md).
+Raising the threshold to its maximum (32 MiB on 64-bit Linux) and never trimming the heap keeps
+those pages in the process for reuse; the process keeps its peak heap size, and blocks above
+32 MiB are unaffected.
 """
 from __future__ import annotations
 
