@@ -1,20 +1,15 @@
-"""Running on several processes: ranks, sharding, gathering (``torch.distributed``, any backend).
-
-Training runs on Lightning's own strategies (``trainer=ddp``, ``trainer=ddp_cpu``): Lightning starts
-the processes (or SLURM / torchrun does) and initialises the process group. This module holds the
-few pieces that Lightning does not give for our data:
-
-* ``shard_indices``: which items of an evaluation set a rank takes, padded (every rank the same
-  count, so that collective calls inside the loop stay matched) or not;
-* ``gather_uneven`` / ``gather_unique``: all-gather tensors whose first dimension differs across
-  ranks (``torch.distributed.all_gather`` needs equal shapes), and drop the duplicates that padding
-  made;
-* ``process_group_from_environment``: joins the process group that a launcher describes
-  (torchrun's or SLURM's environment variables) for Lightning-free tools such as ``svr.evaluate``;
-* ``launch_rank_is_zero``: whether this process is global rank 0, also before any process group
-  exists (for files written before Lightning sets the ranks up).
-
-Everything degrades to the single-process case when no process group is initialised.
+"""Running on several processes (``torch.distributed``, any backend): the few pieces that Lightning
+does not give for our data, since training runs on Lightning's own strategies (``trainer=ddp``,
+``trainer=ddp_cpu``), where Lightning, SLURM or torchrun starts the processes and Lightning
+initialises the process group. ``shard_indices`` says which items of an evaluation set a rank
+takes, padded (every rank the same count, so that collective calls inside the loop stay matched)
+or not; ``gather_uneven`` and ``gather_unique`` all-gather tensors whose first dimension differs
+across ranks (``torch.distributed.all_gather`` needs equal shapes) and drop the duplicates that
+padding made; ``process_group_from_environment`` joins the process group that a launcher
+describes (torchrun's or SLURM's environment variables) for Lightning-free tools such as
+``svr.evaluate``; ``launch_rank_is_zero`` says whether this process is global rank 0, also before
+any process group exists (for files written before Lightning sets the ranks up). Everything
+degrades to the single-process case when no process group is initialised.
 """
 from __future__ import annotations
 

@@ -1,18 +1,14 @@
-"""The single-view training losses (paper section 6), as pure functions.
-
+"""The single-view training losses (paper section 6), as pure functions:
 ``L = L_img + M * (lambda_1 L_eikonal + lambda_2 L_laplacian)`` with ``M`` the narrow band
-``|SDF| <= mu * voxel`` (paper: lambda_1 = lambda_2 = 0.02, mu = 1.6).
-
-* ``image_loss`` renders the predicted SDF grids from the sampled dataset views (renderer.render,
-  the NMR cameras) and compares them with the dataset images: the silhouette against the alpha
-  channel always, the shaded colour against RGB only when the scene asks for shading (datasets
-  whose shading model is known). Which passes run follows the scene, so silhouette-only data never
-  pays for shading.
-* ``eikonal_loss`` and ``laplacian_loss`` (``sdfcommon.numerics.regularisers``, shared with mvr) are finite
-  differences on the grid, averaged over the narrow band's vertices.
-
-Grids are (B, N, N, N) in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``),
-world units, over a cube whose sample spacing is ``voxel_size``.
+``|SDF| <= mu * voxel`` (paper: lambda_1 = lambda_2 = 0.02, mu = 1.6). ``image_loss`` renders the
+predicted SDF grids from the sampled dataset views (``renderer.render``, the NMR cameras) and
+compares them with the dataset images: the silhouette against the alpha channel always, the
+shaded colour against RGB only when the scene asks for shading (datasets whose shading model is
+known); which passes run follows the scene, so silhouette-only data never pays for shading.
+``eikonal_loss`` and ``laplacian_loss`` (``sdfcommon.numerics.regularisers``, shared with mvr) are
+finite differences on the grid, averaged over the narrow band's vertices. Grids are (B, N, N, N)
+in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``), in world units, over
+a cube whose sample spacing is ``voxel_size``.
 """
 from __future__ import annotations
 

@@ -1,17 +1,15 @@
-"""The NMR ShapeNet single-view format: files, validation, one-time preparation and the dataset.
-
-Layout of a root folder (SPEC section 5), per category id ``cid`` and split (train, val, test):
-
-* ``{cid}_{split}_images.npz``: key ``arr_0``, uint8 (N, 24, 4, 64, 64): per object 24 views
-  (view k: azimuth -15 k degrees, ``renderer.Cameras.nmr``), channels R, G, B, alpha.
-* ``{cid}_{split}_voxels.npz``: key ``arr_0``, bool (N, 32, 32, 32), solid, in the NMR voxel frame
-  (``svr.evaluation.voxels``: ``vox[i, j, k]`` at world ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``).
-* optional ``metadata.json`` (procedural data): category names and the shading model.
-
-``prepare_nmr`` converts the compressed files once into uncompressed ``{cid}_{split}_images.npy`` /
-``_voxels.npy`` beside them (or in ``prepared_dir``); ``NMRDataset`` opens those with
-``mmap_mode="r"``, so every worker process reads the same page-cache copy instead of holding its own
-(the train images are ~12 GB decompressed). Without them it decompresses the npz into memory.
+"""The NMR ShapeNet single-view format (SPEC section 5; docs/data.md): its files, their
+validation, the one-time preparation and the dataset. A root folder holds, per category id
+``cid`` and split (train, val, test), ``{cid}_{split}_images.npz`` (key ``arr_0``, uint8
+(N, 24, 4, 64, 64): per object 24 views, view k at azimuth -15 k degrees as
+``renderer.Cameras.nmr`` places it, channels R, G, B, alpha) and ``{cid}_{split}_voxels.npz``
+(key ``arr_0``, bool (N, 32, 32, 32), solid, in the NMR voxel frame of ``svr.evaluation.voxels``:
+``vox[i, j, k]`` at world ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``), and, for procedural
+data, a ``metadata.json`` (category names and the shading model). ``prepare_nmr`` converts the
+compressed files once into uncompressed ``{cid}_{split}_images.npy`` / ``_voxels.npy`` beside
+them (or in ``prepared_dir``), which ``NMRDataset`` opens with ``mmap_mode="r"`` so that every
+worker process reads the same page-cache copy instead of holding its own (the train images are
+about 12 GB decompressed); without them it decompresses the npz into memory.
 """
 from __future__ import annotations
 

@@ -1,26 +1,19 @@
-"""Baselines of the single-view benchmark, scored on the same images and by the same protocol as a model.
-
-A learnt model's IoU means little alone. These rows bound it on the same data (SPEC section 5):
-
-* ``mean_shape``: one shape for every input: the training objects' mean occupancy, thresholded at
-  the level whose protocol voxels fit the training objects best.
-* ``category_mean_shape``: one shape per category, the mean of the category's training signed
-  distance grids (``svr.evaluation.voxels.voxels_to_sdf`` of their voxels) at the iso-level that fits them
-  best. It is told the category, which the model is not: an optimistic version of the above.
-* ``retrieval``: for each test image, the training object whose stored silhouette in the same view
-  is most similar (soft IoU of the alpha channels at 32^2) to the input's alpha; its ground-truth
-  voxels are the prediction. The camera is known, as it is to the model; the category is not. The
-  bar a learnt model must clear to show it learnt shape rather than looked it up (published on NMR
-  ShapeNet: 0.4766 mean IoU).
-* ``oracle``: the exact (analytic) shape's SDF sampled on the model's grid, clipped to the object
-  box as predictions are (``svr.evaluation.voxels.clip_to_box``), through the protocol: the ceiling of what a
-  model with that grid can score. Procedural data only (it needs the analytic shapes).
-
-The two mean shapes are predicted as SDFs and go through the protocol (marching cubes, the
-benchmark's voxelisation) like a model's output. Retrieval's prediction is a training object's
-ground truth, already in the benchmark's voxel form, so it is compared as it is: voxelising it
-again would dilate it by the protocol's surface voxels. ``score_baselines`` returns per-image IoU
-aligned with an ``svr.evaluate.EvaluationResult``'s images.
+"""Baselines of the single-view benchmark, scored on the same images and by the same protocol as a
+model, since a learnt model's IoU means little alone: these rows bound it on the same data (SPEC
+section 5; docs/svr_evaluation.md). ``mean_shape`` is one shape for every input, the training
+objects' mean occupancy thresholded at the level whose protocol voxels fit them best;
+``category_mean_shape`` is one shape per category, the mean of the category's training signed
+distance grids (``svr.evaluation.voxels.voxels_to_sdf`` of their voxels) at the iso-level that fits
+them best, told the category, which the model is not (an optimistic version of the former);
+``retrieval`` predicts, for each test image, the ground-truth voxels of the training object whose
+stored silhouette in the same view is most similar to the input's alpha (``retrieve``), the
+camera known as it is to the model and the category not, the bar a learnt model must clear to
+show that it learnt shape rather than looked it up (published on NMR ShapeNet: 0.4766 mean IoU);
+``oracle`` puts the exact (analytic) shape's SDF, sampled on the model's grid and clipped to the
+object box as predictions are (``svr.evaluation.voxels.clip_to_box``), through the protocol, the
+ceiling of what a model with that grid can score (procedural data only, since it needs the
+analytic shapes). ``score_baselines`` returns their per-image IoU, aligned with an
+``svr.evaluate.EvaluationResult``'s images.
 """
 from __future__ import annotations
 
@@ -218,6 +211,11 @@ def oracle_voxels(root, category_id: str, split: str, index: int, half_side: flo
 def score_baselines(names: Sequence[str], result, objects, train, half_side: float, grid_resolution: int,
                     progress: bool = True) -> dict[str, np.ndarray]:
     """Per-image IoU of each baseline on the images an evaluation scored.
+
+    The two mean shapes are predicted as SDFs and go through the protocol (marching cubes, the
+    benchmark's voxelisation) like a model's output. Retrieval's prediction is a training object's
+    ground truth, already in the benchmark's voxel form, so it is compared as it is: voxelising it
+    again would dilate it by the protocol's surface voxels.
 
     Args:
         names: baselines to score (``BASELINES``); "oracle" is skipped where the data is not a

@@ -1,19 +1,16 @@
-"""Voxel IoU as the NMR ShapeNet benchmark computes it, a fast direct variant, and per-category tables.
-
-Pure functions (no state, no I/O). The protocol (SPEC section 5):
-
-1. the predicted SDF grid -> marching-cubes mesh (``sdfcommon.numerics.meshing.sdf_to_mesh``, closed at the box);
-2. the mesh -> 32^3 solid voxels in the NMR frame by the benchmark's rules
-   (``svr.evaluation.voxels.voxelize_mesh_nmr``: dilated surface voxels, vertex voxels, 6-connected fill);
-3. IoU per test image ``|pred & gt| / |pred | gt|`` (every one of the 24 views of every object is a
-   prediction); category IoU = mean over its images; the reported mean = unweighted mean over the
-   categories.
-
-``iou_direct`` skips the mesh: the trilinear SDF at the voxel centres, ``< level``. It is much
-faster (validation during training) and not the benchmark's number: the protocol's surface voxels
-make every prediction about one voxel layer fatter (tests/svr/test_metrics.py measures the gap).
-With ``level=PROTOCOL_LIKE_LEVEL`` (0.55 voxel) its voxels approximate the protocol's (IoU about
-0.95 to them on the procedural shapes), so it tracks the benchmark number instead.
+"""Voxel IoU as the NMR ShapeNet benchmark computes it, a fast direct variant, and per-category
+tables, as pure functions (no state, no I/O). The protocol (SPEC section 5; ``iou_protocol``)
+turns the predicted SDF grid into a marching-cubes mesh (``sdfcommon.numerics.meshing.sdf_to_mesh``,
+closed at the box), the mesh into 32^3 solid voxels in the NMR frame by the benchmark's rules
+(``svr.evaluation.voxels.voxelize_mesh_nmr``: dilated surface voxels, vertex voxels, 6-connected
+fill), and scores IoU ``|pred & gt| / |pred | gt|`` per test image (every one of the 24 views of
+every object is a prediction); a category's IoU is the mean over its images, and the reported mean
+the unweighted mean over the categories (``iou_table``). ``iou_direct`` skips the mesh (the
+trilinear SDF at the voxel centres, ``< level``): much faster, for validation during training, and
+not the benchmark's number, since the protocol's surface voxels make every prediction about one
+voxel layer fatter (tests/svr/test_metrics.py measures the gap); with
+``level=PROTOCOL_LIKE_LEVEL`` (0.55 voxel) its voxels approximate the protocol's (IoU about 0.95
+to them on the procedural shapes), so that it tracks the benchmark number instead.
 """
 from __future__ import annotations
 

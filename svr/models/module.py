@@ -1,23 +1,10 @@
-"""SVRLightningModule: the three-stage training of the single-view network (paper section 6).
-
-Stages:
-
-* ``coarse``: encoder + decoder, loss on the coarse SDF; the refiner is not run.
-* ``refine``: the refiner alone, loss on the refined SDF; encoder and decoder are frozen:
-  ``requires_grad`` False, batch norm in eval mode (kept so whatever calls ``.train()``), and run
-  without building a graph.
-* ``joint``: all three, loss on the refined SDF.
-
-Robustness: a non-finite prediction, loss or gradient never reaches the weights. The step is
-skipped (every gradient dropped before the optimiser sees it), a warning is issued and
-``train/skipped_steps`` counts them (also kept in the checkpoint). Under distributed training the
-ranks agree: a step that is not finite on one rank is skipped on all of them (gradients are
-averaged after the loss, so a non-finite gradient already is everyone's), so the weights stay
-equal across ranks.
-
-Several processes: training metrics are averaged over the ranks (``sync_dist``); validation
-gathers every rank's per-image IoU and counts each image once (the evaluation samplers pad the
-ranks' shares to equal sizes), so ``val/iou`` is the single-process number on every rank.
+"""SVRLightningModule: the three-stage training of the single-view network (paper section 6). In
+the ``coarse`` stage the encoder and decoder train on the coarse SDF's loss and the refiner is not
+run; in ``refine`` the refiner trains alone on the refined SDF's loss, with the encoder and
+decoder frozen (``requires_grad`` False, batch norm in eval mode, kept so whatever calls
+``.train()``, and run without building a graph); in ``joint`` all three train on the refined
+SDF's loss. How a non-finite step is skipped and how several processes agree is in the class
+docstring.
 """
 from __future__ import annotations
 
@@ -49,6 +36,15 @@ def _default_optimizer(params: Iterable[torch.nn.Parameter]) -> torch.optim.Opti
 
 class SVRLightningModule(pl.LightningModule):
     """Trains an SVRNet by rendering its SDF predictions (renderer.render) against the dataset views.
+
+    A non-finite prediction, loss or gradient never reaches the weights: the step is skipped
+    (every gradient dropped before the optimiser sees it), a warning is issued and
+    ``train/skipped_steps`` counts them (also kept in the checkpoint). Under distributed training
+    the ranks agree: a step that is not finite on one rank is skipped on all of them (gradients are
+    averaged after the loss, so a non-finite gradient already is everyone's), so the weights stay
+    equal across ranks. Training metrics are averaged over the ranks (``sync_dist``); validation
+    gathers every rank's per-image IoU and counts each image once (the evaluation samplers pad the
+    ranks' shares to equal sizes), so ``val/iou`` is the single-process number on every rank.
 
     Args:
         net: the network.

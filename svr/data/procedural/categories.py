@@ -1,30 +1,12 @@
-"""The procedural shape categories of the ShapeNet-shaped benchmark: parametric CSG shapes.
-
-The 13 categories of NMR ShapeNet (same synset ids and order as ``svr.data.nmr.NMR_CATEGORIES``)
-and two extras (mug, shelf). Each category has a few *styles*, structurally different variants
-(a swivel chair is not a four-legged chair with other proportions); within a style the
-proportions and optional parts are drawn from a ``numpy.random.Generator``, so an object is
-reproducible from its seed (``make_shape``).
-
-Conventions of the raw shapes (``ProceduralCategory.make``), kept by ``make_shape`` after it
-normalises them (bounding box centred, longest side 1, as ShapeNet):
-
-* y up; objects that stand, stand on y = 0 before normalisation.
-* The front faces -z, towards NMR view 0 (its eye is on the -z axis): chair and sofa seats open to
-  -z with their backs at +z, screens, speaker drivers and cabinet doors face -z, phones stand
-  upright with the screen to -z.
-* Long objects lie along z with their front to -z: the airplane's nose, the car's bonnet, the
-  rifle's muzzle and the vessel's bow.
-* Thin parts: raw shapes are built at about unit size with every part at least ``MIN_PART`` thick
-  and a longest side of at most ``MAX_RAW_SIZE``, so that after normalisation the thinnest part is
-  at least ``MIN_PART / MAX_RAW_SIZE`` = 0.05 thick, 1.5 voxels of the 32^3 benchmark grid: thin
-  enough to make holes and legs, thick enough for the benchmark's voxels.
-* Holes (genus > 0) where the real category has them: chair backs and arms, table stretchers and
-  shelves, bench slats, lamp arms, display stands, rifle trigger guards and scopes, boat thwarts.
-
-Each row of a CSG program costs time in every render and voxelisation, so a shape holds a few tens
-of primitives at most; hollow parts (shades, beds, recesses) are built before the parts that must
-not be cut, since a subtraction removes material from everything added before it.
+"""The procedural shape categories of the ShapeNet-shaped benchmark, as parametric CSG shapes: the
+13 categories of NMR ShapeNet (the same synset ids, in the order of
+``svr.data.nmr.NMR_CATEGORIES``) and two extras (mug, shelf). Each category has a few *styles*,
+structurally different variants (a swivel chair is not a four-legged chair with other
+proportions); within a style the proportions and optional parts are drawn from a
+``numpy.random.Generator``, so that an object is reproducible from its seed (``make_shape``,
+which also normalises it: bounding box centred, longest side 1, as ShapeNet). The conventions
+every raw shape keeps (orientation, thinnest part, holes, the size of a CSG program) are in the
+docstring of ``ProceduralCategory``.
 """
 from __future__ import annotations
 
@@ -38,7 +20,7 @@ from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
 
 Seed = Union[int, Sequence[int]]
 
-# Raw-size limits behind the thinnest normalised part (module docstring): MIN_PART / MAX_RAW_SIZE.
+# Raw-size limits behind the thinnest normalised part (see ProceduralCategory): MIN_PART / MAX_RAW_SIZE.
 MIN_PART = 0.055
 MAX_RAW_SIZE = 1.1
 
@@ -1354,6 +1336,22 @@ def make_shelf(rng: np.random.Generator, style: str) -> CSGShape:
 @dataclass(frozen=True)
 class ProceduralCategory:
     """A procedural category.
+
+    The raw shapes of ``make`` keep these conventions, which ``make_shape`` keeps when it
+    normalises them. They are y up, and objects that stand stand on y = 0 before normalisation.
+    The front faces -z, towards NMR view 0 (whose eye is on the -z axis): chair and sofa seats open
+    to -z with their backs at +z, screens, speaker drivers and cabinet doors face -z, and phones
+    stand upright with the screen to -z. Long objects lie along z with their front to -z: the
+    airplane's nose, the car's bonnet, the rifle's muzzle and the vessel's bow. Raw shapes are built
+    at about unit size with every part at least ``MIN_PART`` thick and a longest side of at most
+    ``MAX_RAW_SIZE``, so that after normalisation the thinnest part is at least
+    ``MIN_PART / MAX_RAW_SIZE`` = 0.05 thick, 1.5 voxels of the 32^3 benchmark grid: thin enough for
+    holes and legs, thick enough for the benchmark's voxels. Shapes have holes (genus > 0) where
+    the real category has them: chair backs and arms, table stretchers and shelves, bench slats,
+    lamp arms, display stands, rifle trigger guards and scopes, boat thwarts. Each row of a CSG
+    program costs time in every render and voxelisation, so a shape holds a few tens of primitives
+    at most; hollow parts (shades, beds, recesses) are built before the parts that must not be cut,
+    since a subtraction removes material from everything added before it.
 
     Attributes:
         category_id: 8 digits; ShapeNet's synset id for the NMR categories, 9000000x for extras.

@@ -1,27 +1,11 @@
-"""A procedural single-view dataset in the exact NMR ShapeNet layout.
-
-The 13 NMR ShapeNet categories (and two extras) as parametric CSG shapes (``svr.data.procedural.categories``),
-each in several styles, random but reproducible from a seed, normalised like ShapeNet (centred on
-the bounding box, longest side 1). Per object:
-
-* 24 RGBA views, uint8 (24, 4, 64, 64), with the NMR cameras (``renderer.Cameras.nmr``: elevation
-  30, distance 2.732, FOV 30), sphere-traced on the *analytic* SDF, anti-aliased by supersampling
-  (S x S rays per pixel, S = 3 by default, NMR's own renderer used 2 x 2; ``render_shape`` gives
-  the adaptive rule), shaded with the fixed light of ``DEFAULT_SHADING`` through
-  ``renderer.shade_lambert`` on a white background, so that training can re-render the
-  same shading with ``ShadingModel.scene()``.
-* solid voxels, bool (32, 32, 32), in the NMR voxel frame: by default (``voxel_rule="protocol"``)
-  the benchmark's own voxelisation of a fine marching-cubes mesh of the analytic SDF (see
-  ``voxelize_shape``), so that the exact shape scores about 1 under the benchmark protocol;
-  ``voxel_rule="centre"``: ``vox[i, j, k]`` is occupied iff the analytic SDF is negative at the
-  world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``.
-
-``generate_procedural_dataset`` writes ``{cid}_{split}_images.npz`` / ``{cid}_{split}_voxels.npz``
-(key ``arr_0``, as NMR ShapeNet), a ``metadata.json`` (categories, settings, shading model), and the
-memory-mapped ``.npy`` copies that ``svr.data.nmr.prepare_nmr`` makes of real NMR data, in chunks
-that worker processes render in parallel and that a killed generation resumes.
-``ensure_procedural_dataset`` does it once into a cache folder named by a hash of the settings and
-reuses it afterwards.
+"""A procedural single-view dataset in the exact NMR ShapeNet layout: the 13 NMR ShapeNet
+categories (and two extras) as parametric CSG shapes (``svr.data.procedural.categories``), each in
+several styles, random but reproducible from a seed and normalised like ShapeNet (centred on the
+bounding box, longest side 1), rendered from the NMR cameras on their analytic SDF
+(``render_shape``) and voxelised in the NMR frame (``voxelize_shape``). ``generate_procedural_dataset``
+writes a dataset (its docstring lists what each object gets and how a killed generation resumes),
+and ``ensure_procedural_dataset`` does it once into a cache folder named by a hash of the
+settings and reuses it afterwards.
 """
 from __future__ import annotations
 
@@ -390,6 +374,21 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
                                 shading: ShadingModel = DEFAULT_SHADING, progress: bool = True,
                                 workers: int = 0) -> Path:
     """Renders and voxelises every object and writes the NMR layout into ``out_dir``.
+
+    Each object gets 24 RGBA views, uint8 (24, 4, 64, 64), from the NMR cameras
+    (``renderer.Cameras.nmr``: elevation 30, distance 2.732, field of view 30), sphere-traced on the
+    *analytic* SDF and anti-aliased by supersampling (S x S rays per pixel, S = 3 by default, where
+    NMR's own renderer used 2 x 2; ``render_shape`` gives the adaptive rule), shaded with the fixed
+    light of ``DEFAULT_SHADING`` through ``renderer.shade_lambert`` on a white background, so that
+    training can re-render the same shading with ``ShadingModel.scene()``. It also gets solid
+    voxels, bool (32, 32, 32), in the NMR voxel frame: by default (``voxel_rule="protocol"``) the
+    benchmark's own voxelisation of a fine marching-cubes mesh of the analytic SDF
+    (``voxelize_shape``), so that the exact shape scores about 1 under the benchmark protocol; with
+    ``voxel_rule="centre"``, ``vox[i, j, k]`` is occupied iff the analytic SDF is negative at the
+    world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``. The folder holds
+    ``{cid}_{split}_images.npz`` and ``{cid}_{split}_voxels.npz`` (key ``arr_0``, as NMR ShapeNet), a
+    ``metadata.json`` (categories, settings, shading model), and the memory-mapped ``.npy`` copies
+    that ``svr.data.nmr.prepare_nmr`` makes of real NMR data.
 
     The work goes into ``.<name>.partial`` beside ``out_dir`` in chunks of ``CHUNK_OBJECTS``
     objects: each chunk is written into the memory-mapped ``.npy`` arrays, flushed, then marked
