@@ -1,13 +1,8 @@
-"""Multi-view 3D reconstruction with the differentiable SDF renderer (SDFDiff, paper section 5).
-
-From a target (a built-in shape or a watertight mesh file) rendered from the 26 views of a cube
-rig, fit an SDF grid coarse to fine, starting from a sphere, and measure the error of its mesh:
-
-    >>> from mvr import reconstruct, Schedule
-    >>> result = reconstruct("torus", "outputs/mvr/torus", schedule=Schedule(end=32, levels=3))  # doctest: +SKIP
-    >>> result.metrics["hausdorff_rel"]  # doctest: +SKIP
-
-Command line: ``python -m mvr target=torus out_dir=outputs/mvr/torus`` (configs/mvr.yaml).
+"""Multi-view 3D reconstruction with the differentiable SDF renderer (SDFDiff, paper section 5):
+from a target (a built-in shape or a watertight mesh file) rendered from the 26 views of a cube
+rig, fit an SDF grid coarse to fine, starting from a sphere, and measure the error of its mesh.
+The command line is ``python -m mvr target=torus out_dir=outputs/mvr/torus`` (configs/mvr.yaml);
+docs/mvr.md shows the Python API (``reconstruct``, ``Schedule``) as well.
 """
 from .losses import view_image_losses, view_silhouette_losses
 from .metrics import SurfaceDistances, surface_distances

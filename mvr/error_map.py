@@ -1,16 +1,12 @@
 """Where a reconstruction is wrong: its error coloured on the surfaces, seen from the rig's cameras.
-
-Each surface is ray cast from a few cameras (``mvr.raycast.mesh_caster``); each pixel's hit point
-gets its exact distance to the *other* surface (``mvr.metrics.one_sided_distances``), the quantity
-whose maximum is the Hausdorff distance. Two rows of pictures follow:
-
-* the target, coloured by its distance to the reconstruction: parts the reconstruction misses
-  (a concavity filled in, a thin part lost);
-* the reconstruction, coloured by its distance to the target: parts it adds (a pocket no silhouette
-  carves, a bridge between limbs).
-
-Colour: Lambert shading (the reconstruction's own scene) times a ramp from light grey (distance 0)
-through yellow to red (``vmax`` and beyond), so the eye goes to where the distance is large.
+Each surface is ray cast from a few cameras (``mvr.raycast.mesh_caster``), and each pixel's hit
+point gets its exact distance to the *other* surface (``mvr.metrics.one_sided_distances``), the
+quantity whose maximum is the Hausdorff distance. The picture has two rows: the target coloured by
+its distance to the reconstruction, which shows the parts the reconstruction misses (a concavity
+filled in, a thin part lost), and the reconstruction coloured by its distance to the target, which
+shows the parts it adds (a pocket no silhouette carves, a bridge between limbs). The colour is
+Lambert shading (the reconstruction's own scene) times a ramp from light grey (distance 0) through
+yellow to red (``vmax`` and beyond), so that the eye goes to where the distance is large.
 """
 from __future__ import annotations
 

@@ -1,9 +1,8 @@
-"""The data terms of multi-view reconstruction (paper section 5.1): pure functions. The eikonal and
-Laplacian regularisers are shared with single-view training (``sdfcommon.numerics.regularisers``).
-
-All terms are means (over pixels; the regularisers over grid vertices), so their balance does not
-change with the image or grid resolution; the paper's sums differ from them by constant factors that the weights
-absorb.
+"""The data terms of multi-view reconstruction (paper section 5.1), as pure functions; the eikonal
+and Laplacian regularisers are shared with single-view training
+(``sdfcommon.numerics.regularisers``). Every term is a mean (over pixels; the regularisers over grid
+vertices), so that their balance does not change with the image or grid resolution; the paper's
+sums differ from them by constant factors that the weights absorb.
 """
 from __future__ import annotations
 

@@ -1,17 +1,14 @@
-"""Surface distances between a reconstructed and a target mesh: pure functions.
-
-Both surfaces are sampled densely and uniformly by area; each sample's distance to the *other*
-surface is the exact distance to the nearest of a few candidate triangles: those with the nearest
-centroids and those around the nearest vertices (KD-trees). For the fine meshes compared here the
-nearest triangle is among them (the tests check against analytic answers; when it is not, the
-result overestimates by a fraction of an edge length). Unlike trimesh.proximity.closest_point,
-whose cost explodes when the surfaces are far apart (a failed reconstruction), this costs the
-same whatever the distances.
-
-* symmetric Hausdorff: ``max(max_a d(a, B), max_b d(b, A))``;
-* Chamfer (L1, symmetric mean): ``(mean_a d(a, B) + mean_b d(b, A)) / 2``;
-* both also divided by the length of the target's bounding-box diagonal (``*_rel``), the
-  normalisation this project uses for the paper's "relative to the size of the bounding box".
+"""Surface distances between a reconstructed and a target mesh, as pure functions: the symmetric
+Hausdorff distance ``max(max_a d(a, B), max_b d(b, A))`` and the Chamfer distance (L1, symmetric
+mean) ``(mean_a d(a, B) + mean_b d(b, A)) / 2``, both also divided by the length of the target's
+bounding-box diagonal (``*_rel``), the normalisation this project uses for the paper's "relative to
+the size of the bounding box". Both surfaces are sampled densely and uniformly by area, and each
+sample's distance to the *other* surface is the exact distance to the nearest of a few candidate
+triangles: those with the nearest centroids and those around the nearest vertices (KD-trees). For
+the fine meshes compared here the nearest triangle is among them (the tests check against analytic
+answers; when it is not, the result overestimates by a fraction of an edge length). Unlike
+trimesh.proximity.closest_point, whose cost explodes when the surfaces are far apart (a failed
+reconstruction), this costs the same whatever the distances.
 """
 from __future__ import annotations
 

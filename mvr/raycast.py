@@ -1,18 +1,14 @@
-"""Ray casting against triangle meshes: the first hit of each ray.
-
-The target images of multi-view reconstruction come from the target mesh itself, never from our
-SDF renderer. ``mesh_caster`` picks the caster:
-
-* ``EmbreeCaster``: Intel Embree through trimesh (``trimesh.ray.ray_pyembree``, PyPI ``embreex``,
-  wheels for x86_64), the well-kept library and the fastest here (docs/mvr_real_scans.md times
-  it); used wherever ``embreex`` imports.
-* ``TriangleGrid``: this project's own numba caster, kept only as the fallback where ``embreex``
-  does not install (e.g. aarch64): a uniform grid of cells over the mesh (3D DDA, Amanatides &
-  Woo), the triangles binned in each cell tested by Moller-Trumbore (two-sided), one ray per numba
-  ``prange`` iteration. trimesh's pure-Python intersector is no fallback: it ran out of memory on
-  26 x 40^2 rays against a 75k-triangle scan (the 26-view rig casts ~10^6 rays).
-
-``tests/mvr/test_raycast.py`` checks both against trimesh's reference intersector and each other.
+"""Ray casting against triangle meshes, the first hit of each ray, which makes the target images of
+multi-view reconstruction from the target mesh itself, never from our SDF renderer.
+``mesh_caster`` picks ``EmbreeCaster`` (Intel Embree through trimesh, ``trimesh.ray.ray_pyembree``,
+PyPI ``embreex`` with wheels for x86_64: the well-kept library and the fastest here, timed in
+docs/mvr_real_scans.md) wherever ``embreex`` imports, and otherwise ``TriangleGrid``, this
+project's own numba caster, kept only as the fallback where ``embreex`` does not install (e.g.
+aarch64): a uniform grid of cells over the mesh (3D DDA, Amanatides & Woo) whose binned triangles
+are tested by Moller-Trumbore (two-sided), one ray per numba ``prange`` iteration. trimesh's
+pure-Python intersector is no fallback: it ran out of memory on 26 x 40^2 rays against a
+75k-triangle scan (the 26-view rig casts about 10^6 rays). ``tests/mvr/test_raycast.py`` checks
+both casters against trimesh's reference intersector and each other.
 """
 from __future__ import annotations
 

@@ -1,18 +1,7 @@
 """Multi-view reconstruction end to end: target -> views -> coarse-to-fine fit -> mesh -> error.
-
-``reconstruct()`` owns the output folder's layout:
-
-    grid.npz            the final SDF grid: values (N, N, N) float32, bbox_min, bbox_max
-    mesh.ply, mesh.obj  its zero level set (marching cubes), world coordinates
-    target.ply          the normalised target mesh the error is measured against
-    views.png           a few views: target, our render, |difference| (rows)
-    levels.json         per level: resolution, image size, passes, updates, losses, seconds, history
-    levels.csv          the same without the per-pass history
-    metrics.json        hausdorff_rel, chamfer_rel, seconds, ... and the normalisation used
-    settings.json       every setting of the run
-    checkpoints/level_XX.pt   the grid after each finished level (a rerun resumes after the last)
-
-Every file is written atomically (sdfcommon.tooling.outputs).
+``reconstruct()`` runs it and owns the output folder's layout (its docstring lists the files),
+with every file written atomically (sdfcommon.tooling.outputs) and a checkpoint after each
+finished level, so that a rerun resumes after the last.
 """
 from __future__ import annotations
 
@@ -215,7 +204,15 @@ def reconstruct(
 
     Args:
         target: a built-in shape name (mvr.shapes.SHAPES), a mesh file path, or a prepared Target.
-        out_dir: the output folder (see the module docstring); created if needed.
+        out_dir: the output folder, created if needed; it receives ``grid.npz`` (the final SDF
+            grid: values (N, N, N) float32, bbox_min, bbox_max), ``mesh.ply`` and ``mesh.obj``
+            (its zero level set by marching cubes, world coordinates), ``target.ply`` (the
+            normalised target mesh the error is measured against), ``views.png`` (a few views:
+            target, our render, |difference|, in rows), ``levels.json`` (per level: resolution,
+            image size, passes, updates, losses, seconds, history), ``levels.csv`` (the same
+            without the per-pass history), ``metrics.json`` (hausdorff_rel, chamfer_rel,
+            seconds, ... and the normalisation used), ``settings.json`` (every setting of the
+            run) and ``checkpoints/level_XX.pt`` (the grid after each finished level).
         rig, grid, target_settings, schedule, optim, noise, evaluation: the settings (plain objects).
         scene: lights, material and effects (None: ``default_scene()``); it must ask for "shading",
             and for "silhouette" when ``optim.silhouette_weight > 0``.

@@ -1,22 +1,19 @@
-"""Process-wide settings for long CPU runs (called by ``python -m mvr`` and the benchmarks, never on
-import).
-
-Three effects, each large on machines whose few cores are shared with other jobs (the figures
-measured on one such machine: docs/measurements.md):
-
-* Threads: the command uses every core by default (``runtime.threads: null``): with the fused
-  renderer and regularisers a 64^3 pass is much faster on 2 threads than on 1 (docs/mvr_method.md).
-  Where other jobs share the cores, torch's intra-op threads wait for each other (this once made
-  the 64^3 eikonal term many times slower on 2 threads): ``runtime.threads=1`` then.
-* Page faults: glibc serves an allocation above its mmap threshold (128 KiB to start with) by a
-  fresh ``mmap`` and returns it to the OS when freed, so each backward pass, which allocates many
-  grid-sized (1 MiB at 64^3) gradient buffers, can page-fault them in again. Raising glibc's mmap
-  and trim thresholds and its top pad (``mallopt``, ``tune_allocator``) keeps freed memory in the
-  heap for reuse (``sdfcommon.tooling.host_memory``, shared with single-view training).
-* Denormal floats: Adam's second moments of the tiny gradients that far-away grid values receive
-  underflow into denormals, which x86 CPUs process far more slowly than normal floats; flushing
-  them to zero (FTZ/DAZ, ``torch.set_flush_denormal``, for the calling thread) makes an update at
-  64^3 faster.
+"""Process-wide settings for long CPU runs, called by ``python -m mvr`` and the benchmarks, never on
+import (``configure_runtime``), with three effects, each large on machines whose few cores are
+shared with other jobs (figures measured on one such machine: docs/measurements.md). Threads: the
+command uses every core by default (``runtime.threads: null``), since with the fused renderer and
+regularisers a 64^3 pass is much faster on 2 threads than on 1 (docs/mvr_method.md), but where
+other jobs share the cores torch's intra-op threads wait for each other (this once made the 64^3
+eikonal term many times slower on 2 threads), and ``runtime.threads=1`` is then better. Page
+faults: glibc serves an allocation above its mmap threshold (128 KiB to start with) by a fresh
+``mmap`` and returns it to the OS when freed, so each backward pass, which allocates many
+grid-sized (1 MiB at 64^3) gradient buffers, can page-fault them in again; raising glibc's mmap
+and trim thresholds and its top pad (``mallopt``, ``tune_allocator``) keeps freed memory in the
+heap for reuse (``sdfcommon.tooling.host_memory``, shared with single-view training). Denormal
+floats: Adam's second moments of the tiny gradients that far-away grid values receive underflow
+into denormals, which x86 CPUs process far more slowly than normal floats, and flushing them to
+zero (FTZ/DAZ, ``torch.set_flush_denormal``, for the calling thread) makes an update at 64^3
+faster.
 """
 from __future__ import annotations
 

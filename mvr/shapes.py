@@ -1,8 +1,7 @@
-"""Built-in analytic target shapes: implicit functions whose zero set is the surface.
-
-Each shape is given in its own frame with its exact bounding box; ``mvr.targets`` meshes it finely
-(marching cubes, vertices projected onto the zero set) and normalises it like any mesh file, so a
-built-in shape and a mesh file go through the same ray caster and the same evaluation.
+"""Built-in analytic target shapes: implicit functions whose zero set is the surface, each given in
+its own frame with its exact bounding box. ``mvr.targets`` meshes them finely (marching cubes,
+vertices projected onto the zero set) and normalises them like any mesh file, so that a built-in
+shape and a mesh file go through the same ray caster and the same evaluation.
 """
 from __future__ import annotations
 
