@@ -31,7 +31,7 @@ def check_float(value: Any, name: str, minimum: Optional[float] = None, maximum:
     """``value`` (an int or a float, not a bool) as a finite float within [minimum, maximum].
 
     Raises:
-        ValueError: ``"<name> must be a number >= <minimum>, got <value!r>"`` (the bounds given).
+        ValueError: ``"<name> must be a finite number >= <minimum>, got <value!r>"`` (the bounds given).
     """
     ok = not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
     if not ok or (minimum is not None and value < minimum) or (maximum is not None and value > maximum):
