@@ -1,25 +1,13 @@
-"""What accuracy costs in time: the study behind docs/accuracy_vs_time.md, in one command.
-
-    python -m benchmarks.accuracy_vs_time                          # all parts, ~20 min on 2 CPU cores
-    python -m benchmarks.accuracy_vs_time --parts mvr,svr          # rerun some parts; the others' last results stay
-    python -m benchmarks.accuracy_vs_time --quick                  # toy sizes (a minute): checks the code paths
-    python -m benchmarks.accuracy_vs_time --parts svr --svr-steps 2000,500   # a longer training budget
-    python -m benchmarks.accuracy_vs_time --report-only            # reassemble the report from the kept sections
-
-Three parts, each a table, a plot (Pareto front marked, default highlighted) and a reading:
-
-* renderer (benchmarks/accuracy_vs_time_renderer.py): hit threshold, maximum steps, intersection mode, grid and
-  image resolution, effects: image error against a high-accuracy render, and time per frame, on the
-  fused CPU kernel (and on CUDA where it runs: a second section);
-* mvr (benchmarks/accuracy_vs_time_mvr.py): multi-view reconstruction error against time for the schedule;
-* svr (benchmarks/accuracy_vs_time_svr.py): validation IoU against training time for the model width, the
-  refiner and the supervised views.
-
-Each part's section is kept in ``<work>/sections/<part>.md`` (with ``<part>.json``: when and how
-long it ran), so ``--parts`` reruns some parts and the report is assembled from the latest of each.
-The plots go to ``<docs>/study_*.png``, the report to ``<docs>/accuracy_vs_time.md``. A ``--quick``
-run writes to outputs/study_quick/ unless ``--docs`` says otherwise, so it never replaces the
-real report.
+"""What accuracy costs in time: the study behind docs/accuracy_vs_time.md in one command,
+``python -m benchmarks.accuracy_vs_time [--parts renderer,mvr,svr] [--quick] [--report-only]``
+(``--help`` shows examples). Three parts, the renderer's (benchmarks/accuracy_vs_time_renderer.py),
+multi-view reconstruction's (benchmarks/accuracy_vs_time_mvr.py) and single-view training's
+(benchmarks/accuracy_vs_time_svr.py), each give a table, a plot (Pareto front marked, default
+highlighted) and a reading. Each part's section is kept in ``<work>/sections/<part>.md`` (with
+``<part>.json``: when and how long it ran), so that ``--parts`` reruns some parts and the report
+is assembled from the latest of each; the plots go to ``<docs>/study_*.png`` and the report to
+``<docs>/accuracy_vs_time.md``, except that a ``--quick`` run writes to outputs/study_quick/ unless
+``--docs`` says otherwise, so that it never replaces the real report.
 """
 from __future__ import annotations
 
@@ -143,8 +131,27 @@ def write_report(docs: Path, work: Path) -> Path:
     return path
 
 
+EXAMPLES = """\
+examples:
+  python -m benchmarks.accuracy_vs_time                          # all parts, ~20 min on 2 CPU cores
+  python -m benchmarks.accuracy_vs_time --parts mvr,svr          # rerun some parts; the others' last results stay
+  python -m benchmarks.accuracy_vs_time --quick                  # toy sizes (a minute): checks the code paths
+  python -m benchmarks.accuracy_vs_time --parts svr --svr-steps 2000,500   # a longer training budget
+  python -m benchmarks.accuracy_vs_time --report-only            # reassemble the report from the kept sections
+
+parts:
+  renderer  hit threshold, maximum steps, intersection mode, grid and image resolution, effects:
+            image error against a high-accuracy render, and time per frame, on the fused CPU
+            kernel (and on CUDA where it runs: a second section)
+  mvr       multi-view reconstruction error against time for the schedule
+  svr       validation IoU against training time for the model width, the refiner and the
+            supervised views
+"""
+
+
 def main(argv: Optional[list[str]] = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated subset of {','.join(PARTS)}")
     ap.add_argument("--quick", action="store_true", help="toy sizes: checks the code paths in about a minute")
     ap.add_argument("--docs", type=Path, default=None,

@@ -1,14 +1,12 @@
-"""The multi-view part of the accuracy-versus-time study: reconstruction error against time for
-the schedule's settings (levels, start resolution, image resolution, passes per level).
-
-Every run is ``python -m mvr target=torus`` (configs/mvr.yaml) with hydra overrides, through the
-same code as benchmarks/mvr_parameter_study.py. The default (configs/mvr.yaml as it is: 8^3 to 64^3 in 4
-levels, the paper's image rule, at most 10 passes per level) runs once; the sweeps change one
-setting of a cheaper base (8^3 to 32^3 in 3 levels, at most 4 passes per level) so that the whole
-part fits in minutes on 2 cores. Each run starts afresh (``resume=false``) in
-``<work>/mvr/<label>``.
-
-Run by ``python -m benchmarks.accuracy_vs_time --parts mvr`` (``--docs DIR`` to keep docs/ as it is).
+"""The multi-view part of the accuracy-versus-time study, run by
+``python -m benchmarks.accuracy_vs_time --parts mvr`` (``--docs DIR`` to keep docs/ as it is):
+reconstruction error against time for the schedule's settings (levels, start resolution, image
+resolution, passes per level). Every run is ``python -m mvr target=torus`` (configs/mvr.yaml) with
+hydra overrides, through the same code as benchmarks/mvr_parameter_study.py. The default
+(configs/mvr.yaml as it is: 8^3 to 64^3 in 4 levels, the paper's image rule, at most 10 passes per
+level) runs once; the sweeps change one setting of a cheaper base (8^3 to 32^3 in 3 levels, at most
+4 passes per level) so that the whole part fits in minutes on 2 cores. Each run starts afresh
+(``resume=false``) in ``<work>/mvr/<label>``.
 """
 from __future__ import annotations
 

@@ -1,25 +1,11 @@
-"""The renderer part of the accuracy-versus-time study.
-
+"""The renderer part of the accuracy-versus-time study, run by
+``python -m benchmarks.accuracy_vs_time --parts renderer`` (``--docs DIR`` to keep docs/ as it is).
 Each sweep changes one setting from the default (64^3 grid, 128^2 images, threshold 0.5 pixel
-footprint, 256 steps, conservative intersection, all effects) and measures, on the same scene
-(the demo's torus and sphere, 4 views):
-
-* image error: mean absolute difference of the shaded image (the effects sweep: of the soft
-  silhouette, the one output every row has) against a high-accuracy reference render of the same
-  analytic shape at the same image size: a fine grid, the exact intersection, a hit threshold of
-  1e-4 voxel and many steps;
-* march error: the same against a high-accuracy render of the *same* grid, i.e. what the march
-  and the intersection settings add on top of the grid's discretisation;
-* depth error: the median and 90th percentile of |depth - reference depth| over the pixels both
-  renders hit (same-grid reference, world units): where the conservative hit point ``s + f(s) v``
-  falls short of the surface and the exact one does not;
-* false hits: the fraction of hit pixels that the same-grid reference misses (rays that passed
-  within the hit threshold of the surface), which no intersection mode can correct;
-* time per frame: forward, and forward + backward into the grid values; medians over repeats of
-  this process's CPU time (with one thread it is the wall time on an idle core; the wall time is
-  in the table too).
-
-Run by ``python -m benchmarks.accuracy_vs_time --parts renderer`` (``--docs DIR`` to keep docs/ as it is).
+footprint, 256 steps, conservative intersection, all effects) and measures, on one scene (the
+demo's torus and sphere, 4 views), the image error against a high-accuracy render of the analytic
+shape, the march error and the depth error against a high-accuracy render of the same grid, the
+false hits, and the time per frame, forward and forward + backward (medians of this process's CPU
+time); ``Renderer.measure`` defines each.
 """
 from __future__ import annotations
 
@@ -158,7 +144,22 @@ class Renderer:
         return self._refs[key]
 
     def measure(self, c: Config) -> dict:
-        """Times and errors of one config (see the module docstring); measured once per config."""
+        """Times and errors of one config, measured once per config.
+
+        The image error is the mean absolute difference of the shaded image (of the soft
+        silhouette in the effects sweep, the one output every row has) against a high-accuracy
+        reference render of the same analytic shape at the same image size (a fine grid, the exact
+        intersection, a hit threshold of 1e-4 voxel and many steps). The march error is the same
+        against a high-accuracy render of the *same* grid: what the march and the intersection
+        settings add on top of the grid's discretisation. The depth error is the median and 90th
+        percentile of |depth - reference depth| over the pixels both renders hit (same-grid
+        reference, world units): where the conservative hit point ``s + f(s) v`` falls short of the
+        surface and the exact one does not. False hits are the fraction of hit pixels that the
+        same-grid reference misses (rays that passed within the hit threshold of the surface),
+        which no intersection mode can correct. Times per frame, forward and forward + backward
+        into the grid values, are medians over repeats of this process's CPU time (with one thread
+        it is the wall time on an idle core; the wall time is kept too).
+        """
         if c in self._measured:
             return self._measured[c]
         grid = self.grid(c.grid)

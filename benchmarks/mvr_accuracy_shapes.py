@@ -1,13 +1,10 @@
-"""Multi-view reconstruction benchmark: the torus (the paper's 0.015637) and other shapes, each
-reconstructed with the default settings of ``python -m mvr`` (configs/mvr.yaml).
-
-    python -m benchmarks.mvr_accuracy_shapes                      # torus double_torus blob rounded_box
-    python -m benchmarks.mvr_accuracy_shapes torus --extra optim.max_passes=8
-
-Each shape runs as ``python -m mvr target=<shape> out_dir=<work>/<shape>`` would, in this process
+"""Multi-view reconstruction benchmark, run as ``python -m benchmarks.mvr_accuracy_shapes [SHAPE ...]
+[--extra OVERRIDE ...]``: the torus (the paper's 0.015637) and other shapes, each reconstructed with
+the default settings of ``python -m mvr`` (configs/mvr.yaml). Each shape runs as
+``python -m mvr target=<shape> out_dir=<work>/<shape>`` would, in this process
 (``benchmarks.report.run_mvr``), one at a time (a finished run is reused: delete its folder to redo
-it); the table goes to
-docs/mvr_shapes.md and each run's views.png to docs/mvr_views_<shape>.png.
+it); the table goes to docs/mvr_shapes.md and each run's views.png to
+docs/mvr_views_<shape>.png.
 """
 from __future__ import annotations
 
@@ -35,8 +32,16 @@ def run_shape(shape: str, out_dir: Path, extra: list[str]) -> tuple[dict, float]
     return json.loads(metrics_file.read_text()), load
 
 
+EXAMPLES = """\
+examples:
+  python -m benchmarks.mvr_accuracy_shapes                      # torus double_torus blob rounded_box
+  python -m benchmarks.mvr_accuracy_shapes torus --extra optim.max_passes=8
+"""
+
+
 def main(argv: list[str] | None = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("shapes", nargs="*", default=list(DEFAULT_SHAPES))
     ap.add_argument("--work", type=Path, default=Path("outputs/mvr_shapes"))
     ap.add_argument("--docs", type=Path, default=Path("docs"))

@@ -1,18 +1,12 @@
-"""The paper's parameter studies for multi-view reconstruction (section 5.3), at reduced scale.
-
-One command per study, each writing a markdown table (error and time per setting) and a plot:
-
-    python -m benchmarks.mvr_parameter_study initial_resolution   # docs/mvr_initial_resolution.{md,png}
-    python -m benchmarks.mvr_parameter_study levels               # docs/mvr_levels.{md,png}
-    python -m benchmarks.mvr_parameter_study image_resolution     # docs/mvr_image_resolution.{md,png}
-    python -m benchmarks.mvr_parameter_study noise                # docs/mvr_noise.{md,png}
-    python -m benchmarks.mvr_parameter_study all
-
-Every run uses the settings of ``python -m mvr`` (configs/mvr.yaml) with a few hydra overrides:
-the setting studied, and the reduced scale (so a study runs in tens of minutes on 2 CPU cores):
-the torus, final grids of 32^3 or 48^3 instead of 64^3, at most ``--passes`` passes per level.
-Every run keeps its output folder under ``--work`` and resumes from it, so an interrupted study
-continues where it stopped.
+"""The paper's parameter studies for multi-view reconstruction (section 5.3) at reduced scale, one
+command per study, ``python -m benchmarks.mvr_parameter_study STUDY`` (``initial_resolution``,
+``levels``, ``image_resolution``, ``noise`` or ``all``), each writing a markdown table (error and
+time per setting) and a plot to docs/mvr_<study>.{md,png}. Every run uses the settings of
+``python -m mvr`` (configs/mvr.yaml) with a few hydra overrides: the setting studied, and the
+reduced scale that lets a study run in tens of minutes on 2 CPU cores (the torus, final grids of
+32^3 or 48^3 instead of 64^3, at most ``--passes`` passes per level). Every run keeps its output
+folder under ``--work`` and resumes from it, so that an interrupted study continues where it
+stopped.
 """
 from __future__ import annotations
 
@@ -132,9 +126,20 @@ def run_study(study: Study, target: str, work: Path, docs: Path, passes: int,
     return path
 
 
+EXAMPLES = """\
+examples:
+  python -m benchmarks.mvr_parameter_study initial_resolution   # docs/mvr_initial_resolution.{md,png}
+  python -m benchmarks.mvr_parameter_study levels               # docs/mvr_levels.{md,png}
+  python -m benchmarks.mvr_parameter_study image_resolution     # docs/mvr_image_resolution.{md,png}
+  python -m benchmarks.mvr_parameter_study noise                # docs/mvr_noise.{md,png}
+  python -m benchmarks.mvr_parameter_study all
+"""
+
+
 def main(argv: list[str] | None = None) -> None:
     studies = _studies()
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("study", choices=[*studies, "all"])
     ap.add_argument("--target", default="torus", help="built-in shape or mesh file (default: torus)")
     ap.add_argument("--passes", type=int, default=6, help="passes per level at most (default: 6)")

@@ -1,24 +1,18 @@
-"""Multi-view reconstruction of real scanned meshes: accuracy, time and a picture of where the error is.
-
-    python -m benchmarks.mvr_real_scans MESH_FOLDER                      # every mesh in the folder
-    python -m benchmarks.mvr_real_scans MESH_FOLDER --meshes elephant cow --configs default
-    python -m benchmarks.mvr_real_scans MESH_FOLDER --out outputs/mvr_real_scans --docs docs
-
-MESH_FOLDER holds the meshes (.off .obj .ply .stl .glb; README.md says how to get CGAL's scans from
-Debian's ``libcgal-demo`` package); nothing is downloaded. Every mesh (and each built-in shape of
+"""Multi-view reconstruction of real scanned meshes (accuracy, time and a picture of where the
+error is), run as ``python -m benchmarks.mvr_real_scans MESH_FOLDER [options]``. MESH_FOLDER holds
+the meshes (.off .obj .ply .stl .glb; README.md says how to get CGAL's scans from Debian's
+``libcgal-demo`` package); nothing is downloaded. Every mesh (and each built-in shape of
 ``--shapes``, by default the torus) is reconstructed once per configuration of ``--configs``:
-
-* ``default``: ``python -m mvr``'s defaults (configs/mvr.yaml);
-* ``paper``: the paper's settings (``mvr/preset=paper``), the baseline measured in the same run.
-
-A mesh that is not watertight is closed by ``trimesh.repair.fill_holes`` when it has at most
-``--max-hole-edges`` boundary edges (the repaired copy goes to ``OUT/meshes/``), else left out with
-the reason in the table. Each run writes its usual folder ``OUT/<config>/<mesh>/`` (a finished one,
-with metrics.json, is reused unless ``--fresh``) plus ``errors.png``: the target coloured by its
-distance to the reconstruction and the reconstruction by its distance to the target (red: at least
-``--error-scale`` of the bounding-box diagonal). The table (markdown, CSV, JSON) goes to OUT, and a
-copy of the markdown with the command and the machine to ``DOCS/mvr_real_scans.md`` (with the
-default configuration's error pictures) unless ``--docs ''``.
+``default``, ``python -m mvr``'s defaults (configs/mvr.yaml), and ``paper``, the paper's settings
+(``mvr/preset=paper``), the baseline measured in the same run. A mesh that is not watertight is
+closed by ``trimesh.repair.fill_holes`` when it has at most ``--max-hole-edges`` boundary edges (the
+repaired copy goes to ``OUT/meshes/``), and otherwise left out with the reason in the table. Each
+run writes its usual folder ``OUT/<config>/<mesh>/`` (a finished one, with metrics.json, is reused
+unless ``--fresh``) plus ``errors.png``: the target coloured by its distance to the reconstruction
+and the reconstruction by its distance to the target (red: at least ``--error-scale`` of the
+bounding-box diagonal). The table (markdown, CSV, JSON) goes to OUT, and a copy of the markdown
+with the command and the machine to ``DOCS/mvr_real_scans.md`` (with the default configuration's
+error pictures) unless ``--docs ''``.
 """
 from __future__ import annotations
 
@@ -305,8 +299,17 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
                       + "\n\nMachine:\n\n" + machine_info() + "\n")
 
 
+EXAMPLES = """\
+examples:
+  python -m benchmarks.mvr_real_scans MESH_FOLDER                      # every mesh in the folder
+  python -m benchmarks.mvr_real_scans MESH_FOLDER --meshes elephant cow --configs default
+  python -m benchmarks.mvr_real_scans MESH_FOLDER --out outputs/mvr_real_scans --docs docs
+"""
+
+
 def main(argv: Optional[list[str]] = None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("mesh_folder", type=Path, help="folder of meshes (never downloaded: see README.md)")
     ap.add_argument("--meshes", nargs="*", default=[], help="file stems to run (default: every mesh)")
     ap.add_argument("--shapes", nargs="*", default=["torus"], help="built-in shapes to add (default: torus)")

@@ -1,14 +1,10 @@
-"""The bar a model must clear on the procedural benchmark: every baseline of ``svr.evaluation.baselines`` (mean
-shape, category mean shape, retrieval, the oracle) on a split of a procedural preset, per category,
-with no model needed (the oracle samples the exact shapes on a 64^3 grid over [-0.6, 0.6]^3, the
-default models' grid).
-
-    python -m benchmarks.procedural_baselines                    # data=procedural_bench, test split
-    python -m benchmarks.procedural_baselines --preset demo --split val
-
-The dataset is generated first if it is not in the cache (``data/make_procedural.py`` does the
-same). Writes the table to docs/procedural_baselines_<preset>.md (``--out`` to change, ``--no-write``
-to only print).
+"""The bar a model must clear on the procedural benchmark, run as
+``python -m benchmarks.procedural_baselines [--preset demo|bench] [--split train|val|test]``: every
+baseline of ``svr.evaluation.baselines`` (mean shape, category mean shape, retrieval, the oracle)
+on a split of a procedural preset, per category, with no model needed (the oracle samples the exact
+shapes on a 64^3 grid over [-0.6, 0.6]^3, the default models' grid). The dataset is generated
+first if it is not in the cache (``data/make_procedural.py`` does the same), and the table goes to
+docs/procedural_baselines_<preset>.md (``--out`` to change, ``--no-write`` to only print).
 """
 from __future__ import annotations
 
@@ -75,8 +71,16 @@ def baseline_table(preset: str = "bench", split: str = "test", cache_dir: Option
     return head + "\n\n" + "\n".join(lines) + "\n", summary
 
 
+EXAMPLES = """\
+examples:
+  python -m benchmarks.procedural_baselines                    # data=procedural_bench, test split
+  python -m benchmarks.procedural_baselines --preset demo --split val
+"""
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--preset", choices=("demo", "bench"), default="bench")
     parser.add_argument("--split", choices=("train", "val", "test"), default="test")
     parser.add_argument("--cache-dir", type=Path, default=None, help="default: data/cache")

@@ -1,38 +1,10 @@
-"""Renderer speed: the PyTorch reference pipeline against the fused kernels (the march alone, and a
-full differentiable render, forward + backward), in one run.
-
-    python -m benchmarks.renderer_speed            # full run, writes docs/bench_renderer.md
-    python -m benchmarks.renderer_speed --quick    # fewer repeats (a smoke run)
-    python -m benchmarks.renderer_speed --threads 1 --out docs/bench_renderer_1thread.md
-    python -m benchmarks.renderer_speed --device cuda   # on a GPU: writes docs/bench_renderer_cuda.md
-
-Threads: as users get them unless told otherwise: torch and numba each use every core (their
-defaults). ``--threads N`` sets both; ``--torch-threads`` torch's alone (0: its default).
-
-Scenes: B grids of 64^3 (a torus, its radii varied a little per grid), one camera per grid at
-distance 2.5 from a random direction, 40 degree field of view (the torus fills part of the
-image), the default ``renderer.Scene()`` (silhouette, depth, normals, Lambert shading). Configs:
-64^2 with B = 32, then 128^2 and 256^2 with B = 8.
-
-What is timed (medians over the repeats, after one warm-up that also loads the compiled kernels):
-- march: ``renderer.sphere_trace`` (ray generation + the no-gradient march) per backend;
-- render f+b: a render + a scalar loss over image, silhouette and depth + ``backward()`` into the
-  grid values, three ways: ``render(backend="reference")`` (the PyTorch march and stage 2: the
-  specification), the fused march with the PyTorch stage 2 (``sphere_trace`` + ``shade_trace(...,
-  stage2="reference")``: the pipeline before stage 2 was fused), and ``render`` with the fused
-  kernels of both stages (the default).
-
-``--device cuda`` times the same calls on the GPU (the reference march on CUDA tensors against the
-fused CUDA kernel, each call ended by ``torch.cuda.synchronize()``), adds the fused CPU march of
-the same host on the same scenes for the CUDA-vs-CPU ratio, and one larger config (512^2, B = 16)
-where the GPU has enough rays to fill it. Memory there is the peak extra GPU memory of one
-forward + backward (``torch.cuda.max_memory_allocated``), measured in the timing process.
-
-Memory: each (config, march) runs once more in a fresh subprocess that builds the scene, warms up
-on a tiny image, resets the kernel's peak-RSS counter (``/proc/self/clear_refs``), runs one
-forward + backward and reports ``VmHWM - VmRSS before``: the peak extra resident memory of that
-forward + backward (torch CPU tensors, numba buffers and all), in MiB. Where clear_refs is not
-available it falls back to the growth of ``ru_maxrss``, which can under-report.
+"""Renderer speed, run as ``python -m benchmarks.renderer_speed [--quick] [--threads N]
+[--device cpu|cuda] [--out FILE]``: the PyTorch reference pipeline against the fused kernels, the
+march alone and a full differentiable render (forward + backward), timed and with their peak
+memory, in one run that writes docs/bench_renderer.md (docs/bench_renderer_cuda.md with
+``--device cuda``). Torch and numba use every core, as users get them, unless ``--threads`` or
+``--torch-threads`` says otherwise; the scenes are batches of 64^3 tori seen by one camera each.
+``--help`` says what is timed and how memory is measured.
 """
 from __future__ import annotations
 
@@ -322,8 +294,50 @@ def machine(device: torch.device = torch.device("cpu")) -> str:
             f"Python {platform.python_version()}")
 
 
+DETAILS = """\
+examples:
+  python -m benchmarks.renderer_speed            # full run, writes docs/bench_renderer.md
+  python -m benchmarks.renderer_speed --quick    # fewer repeats (a smoke run)
+  python -m benchmarks.renderer_speed --threads 1 --out docs/bench_renderer_1thread.md
+  python -m benchmarks.renderer_speed --device cuda   # on a GPU: writes docs/bench_renderer_cuda.md
+
+threads:
+  As users get them unless told otherwise: torch and numba each use every core (their defaults).
+  --threads N sets both; --torch-threads torch's alone (0: its default).
+
+scenes:
+  B grids of 64^3 (a torus, its radii varied a little per grid), one camera per grid at distance
+  2.5 from a random direction, 40 degree field of view (the torus fills part of the image), the
+  default renderer.Scene() (silhouette, depth, normals, Lambert shading). Configs: 64^2 with
+  B = 32, then 128^2 and 256^2 with B = 8.
+
+what is timed (medians over the repeats, after one warm-up that also loads the compiled kernels):
+  march        renderer.sphere_trace (ray generation + the no-gradient march) per backend
+  render f+b   a render + a scalar loss over image, silhouette and depth + backward() into the
+               grid values, three ways: render(backend="reference") (the PyTorch march and
+               stage 2: the specification), the fused march with the PyTorch stage 2
+               (sphere_trace + shade_trace(..., stage2="reference"): the pipeline before stage 2
+               was fused), and render with the fused kernels of both stages (the default)
+
+--device cuda:
+  Times the same calls on the GPU (the reference march on CUDA tensors against the fused CUDA
+  kernel, each call ended by torch.cuda.synchronize()), adds the fused CPU march of the same host
+  on the same scenes for the CUDA-vs-CPU ratio, and one larger config (512^2, B = 16) where the
+  GPU has enough rays to fill it. Memory there is the peak extra GPU memory of one forward +
+  backward (torch.cuda.max_memory_allocated), measured in the timing process.
+
+memory (CPU):
+  Each (config, march) runs once more in a fresh subprocess that builds the scene, warms up on a
+  tiny image, resets the kernel's peak-RSS counter (/proc/self/clear_refs), runs one forward +
+  backward and reports VmHWM - VmRSS before: the peak extra resident memory of that forward +
+  backward (torch CPU tensors, numba buffers and all), in MiB. Where clear_refs is not available
+  it falls back to the growth of ru_maxrss, which can under-report.
+"""
+
+
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__, epilog=DETAILS,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="one timed repeat per measurement")
     parser.add_argument("--repeats", type=int, default=None, help="timed repeats per measurement (default 5)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu",

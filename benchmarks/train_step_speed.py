@@ -1,33 +1,13 @@
-"""One single-view training step, phase by phase: where the time and the memory of a step go.
-
-    python -m benchmarks.train_step_speed                          # experiment=demo, writes docs/bench_train_step.md
-    python -m benchmarks.train_step_speed model=paper data.batch_size=8 --no-write
-    python -m benchmarks.train_step_speed --device cuda            # on a GPU: docs/bench_train_step_cuda.md
-    python -m benchmarks.train_step_speed --baseline ../old-checkout   # before/after, same run
-
-Positional arguments are hydra overrides of ``configs/train.yaml`` (default ``experiment=demo``).
-The data module, network and loss are built from that config exactly as ``train.py`` builds them,
-and one training batch of it is used throughout (the procedural data is generated first if needed).
-
-Phases (each timed alone, median over ``--repeats`` after one warm-up; CUDA calls are synchronised):
-
-- data: one batch from the training data loader (its worker processes included, as training sees it);
-- encoder / decoder / refiner: forward + backward of that module alone (weights' gradients; the
-  refiner's input is the decoder's output, detached, as in the refine stage);
-- render: the image loss (sphere tracing, differentiable shading, silhouette and colour terms)
-  forward + backward into the grid values;
-- regularisers: the narrow-band eikonal + Laplacian terms forward + backward into the grid values;
-- optimiser: one step of the stage optimiser over the joint stage's parameters;
-- step <stage>: a whole training step of each stage as the LightningModule runs it (forward,
-  loss, backward, optimiser step) on the same batch; images/s = batch size / step time.
-
-Memory: on CUDA the peak allocated memory of each phase (``torch.cuda.max_memory_allocated``);
-on the CPU the peak extra resident memory of one call (``VmHWM`` after resetting it through
-``/proc/self/clear_refs``; "n/a" where that is not available).
-
-``--baseline PATH`` runs the same measurements with the code and configs of another checkout (e.g. a
-``git worktree`` of main before a change) in alternating subprocesses (``--rounds`` each) and
-reports both and their ratio: a speed claim against a baseline measured in the same run.
+"""One single-view training step, phase by phase (where the time and the memory of a step go), run
+as ``python -m benchmarks.train_step_speed [OVERRIDE ...] [--device cpu|cuda] [--baseline PATH]``
+and written to docs/bench_train_step.md (docs/bench_train_step_cuda.md on CUDA). The positional
+arguments are hydra overrides of ``configs/train.yaml`` (default ``experiment=demo``); the data
+module, network and loss are built from that config exactly as ``train.py`` builds them, and one
+training batch of it is used throughout (the procedural data is generated first if needed). Each
+phase (data, encoder, decoder, refiner, render, regularisers, optimiser, and a whole step of each
+stage) is timed alone, the median over ``--repeats`` after one warm-up, with its peak memory;
+``--baseline PATH`` measures another checkout in the same run for a before/after ratio.
+``--help`` lists the phases and how memory is measured.
 """
 from __future__ import annotations
 
@@ -296,9 +276,42 @@ def _subprocess(code: Path, overrides: list[str], args) -> dict:
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
+DETAILS = """\
+examples:
+  python -m benchmarks.train_step_speed                          # experiment=demo, writes docs/bench_train_step.md
+  python -m benchmarks.train_step_speed model=paper data.batch_size=8 --no-write
+  python -m benchmarks.train_step_speed --device cuda            # on a GPU: docs/bench_train_step_cuda.md
+  python -m benchmarks.train_step_speed --baseline ../old-checkout   # before/after, same run
+
+phases (each timed alone, median over --repeats after one warm-up; CUDA calls are synchronised):
+  data           one batch from the training data loader (its worker processes included, as
+                 training sees it)
+  encoder / decoder / refiner
+                 forward + backward of that module alone (weights' gradients; the refiner's input
+                 is the decoder's output, detached, as in the refine stage)
+  render         the image loss (sphere tracing, differentiable shading, silhouette and colour
+                 terms) forward + backward into the grid values
+  regularisers   the narrow-band eikonal + Laplacian terms forward + backward into the grid values
+  optimiser      one step of the stage optimiser over the joint stage's parameters
+  step <stage>   a whole training step of each stage as the LightningModule runs it (forward,
+                 loss, backward, optimiser step) on the same batch; images/s = batch size / step time
+
+memory:
+  On CUDA the peak allocated memory of each phase (torch.cuda.max_memory_allocated); on the CPU
+  the peak extra resident memory of one call (VmHWM after resetting it through
+  /proc/self/clear_refs; "n/a" where that is not available).
+
+--baseline PATH:
+  Runs the same measurements with the code and configs of another checkout (e.g. a git worktree
+  of main before a change) in alternating subprocesses (--rounds each) and reports both and their
+  ratio: a speed claim against a baseline measured in the same run.
+"""
+
+
 def main(argv: Optional[list[str]] = None) -> None:
     argv = sys.argv[1:] if argv is None else argv
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__, epilog=DETAILS,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("overrides", nargs="*", help="hydra overrides of configs/train.yaml (default: experiment=demo)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     parser.add_argument("--repeats", type=int, default=5, help="timed calls per phase (default 5)")

@@ -1,9 +1,7 @@
-"""Validation IoU against training time of a run (all its stages, resumed parts included).
-
-    python -m benchmarks.training_curve outputs/bench --baseline retrieval=0.83 --out docs/bench_curve
-
-Reads ``<run>/<stage>/csv/metrics*.csv`` (the CSV logger's files; a resumed stage's earlier parts
-are kept as ``metrics.<k>.csv``) for every stage of the run's ``config.yaml`` schedule, and writes
+"""Validation IoU against training time of a run (all its stages, resumed parts included), run as
+``python -m benchmarks.training_curve RUN [--baseline NAME=IOU ...] [--out PATH]``. It reads
+``<run>/<stage>/csv/metrics*.csv`` (the CSV logger's files; a resumed stage's earlier parts are kept
+as ``metrics.<k>.csv``) for every stage of the run's ``config.yaml`` schedule, and writes
 ``<out>.md`` (one row per validation: stage, step, cumulative hours, validation IoU, the coarse
 stage's IoU where the refiner ran) and ``<out>.png`` (IoU against cumulative hours, one line per
 stage, a dashed line per ``--baseline NAME=IOU``). The time is the ``val/train_seconds`` the
@@ -107,8 +105,15 @@ def _baseline(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"--baseline must be NAME=IOU (e.g. retrieval=0.83), got {text!r}") from None
 
 
+EXAMPLES = """\
+example:
+  python -m benchmarks.training_curve outputs/bench --baseline retrieval=0.83 --out docs/bench_curve
+"""
+
+
 def main(argv: Optional[list[str]] = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dir", type=Path, help="a training run folder (holds config.yaml and <stage>/csv/)")
     parser.add_argument("--baseline", type=_baseline, action="append", default=[], metavar="NAME=IOU")
     parser.add_argument("--out", type=Path, default=None, help="output path without suffix (default RUN/curve)")
