@@ -59,7 +59,7 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
     from sdfcommon.numerics.meshing import sdf_to_mesh
 
     from svr.data.nmr import NUM_VIEWS
-    from svr.inference.prediction import predict_sdf
+    from svr.inference.prediction import LoadedModel, predict_sdf
     from svr.view_renders import render_views
 
     net.eval()
@@ -74,8 +74,8 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
         obj = int(dataset.offsets[c])
         for v in views:
             image = dataset.views(obj, [v])  # (1, 4, 64, 64)
-            final = predict_sdf(net, image).final  # what the evaluation scored
-            coarse = predict_sdf(coarse_net, image, refine=False).coarse
+            final = predict_sdf(LoadedModel(net), image).final  # what the evaluation scored
+            coarse = predict_sdf(LoadedModel(coarse_net), image, refine=False).coarse
             hs = net.half_side
             shots = []
             for sdf, view in ((coarse, v), (final, v), (final, v + 6), (final, v + 12)):
@@ -134,7 +134,7 @@ def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progres
 
     from svr.evaluation.baselines import BASELINES
     from svr.inference.checkpoints import load_network
-    from svr.evaluate import add_baselines, evaluate
+    from svr.evaluation.benchmark import add_baselines, evaluate
     from svr.inference.prediction import load_model
     from svr.evaluation.tables import format_table, write_report
 
@@ -142,8 +142,7 @@ def evaluate_run(cfg, run_dir: Path, out_dir: Path, split: str = "test", progres
     dm.prepare_data()
     schedule = list(cfg.stage.schedule)
     final_ckpt, coarse_ckpt = stage_checkpoint(run_dir, schedule[-1]), stage_checkpoint(run_dir, schedule[0])
-    kwargs = dict(progress=progress, protocol_workers=protocol_workers,
-                  batch_size=int(cfg.data.get("eval_batch_size", 32)))
+    kwargs = dict(progress=progress, protocol_workers=protocol_workers)  # batches: the data's eval_batch_size
     model = load_model(final_ckpt, "cpu")
     result = evaluate(model, dm, split, **kwargs)
     extra = {}
