@@ -26,8 +26,8 @@ from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.commands import hydra_entry
 from sdfcommon.tooling.outputs import write_json, write_text
 from sdfcommon.tooling.settings import settings_record
-from svr.evaluate import add_baselines, evaluate
 from svr.evaluation.baselines import BASELINES
+from svr.evaluation.benchmark import add_baselines, evaluate
 from svr.evaluation.tables import format_table, write_report
 from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint, load_network
 from svr.inference.prediction import load_model
@@ -91,7 +91,7 @@ def evaluate_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: 
     dm.prepare_data()
     schedule = list(settings.stage.schedule)
     final_ckpt, coarse_ckpt = run.best_or_final(schedule[-1]), run.best_or_final(schedule[0])
-    kwargs = dict(progress=progress, protocol_workers=protocol_workers, batch_size=int(settings.data["eval_batch_size"]))
+    kwargs = dict(progress=progress, protocol_workers=protocol_workers)  # batches: the data's eval_batch_size
     model = load_model(final_ckpt, "cpu")
     result = evaluate(model, dm, split, **kwargs)
     extra = {}

@@ -1,10 +1,9 @@
-"""The trained network, used: network -> prediction.
-
-``load_model`` reads a checkpoint (``svr.inference.checkpoints``) onto a device; ``predict_sdf`` runs the
-network on images in batches without gradients and closes the shapes at the normalisation cube
-(``svr.evaluation.voxels.clip_to_box``); ``predict`` gives ``renderer.SDFGrid``s. Evaluation, inference and
-the demo all predict through here, so they score and show the same shapes.
-"""
+"""The trained network, used: ``load_model`` (the one place a checkpoint path becomes a model)
+reads a checkpoint (``svr.inference.checkpoints``) onto a device as a ``LoadedModel``; ``predict_sdf``
+runs a LoadedModel on images in batches without gradients and closes the shapes at the
+normalisation cube (``svr.evaluation.voxels.clip_to_box``); ``predict`` gives ``renderer.SDFGrid``s.
+Evaluation, inference and the demo all predict through here, so they score and show the same
+shapes; a network in memory is wrapped as ``LoadedModel(net)``."""
 from __future__ import annotations
 
 import os
@@ -18,6 +17,7 @@ import renderer
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.serialization import scrub_unsafe_advice
 
+from svr.evaluation.voxels import clip_to_box
 from svr.inference.checkpoints import load_network
 from svr.models.network import SVRNet, SVRPrediction
 
@@ -90,9 +90,6 @@ class LoadedModel:
         return "refined" if self.uses_refiner else "coarse"
 
 
-ModelLike = Union[LoadedModel, SVRNet, str, os.PathLike]
-
-
 def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "auto") -> LoadedModel:
     """Loads one of our checkpoints (made on a CPU or a GPU) onto ``device`` for inference.
 
@@ -120,16 +117,13 @@ def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "au
                        categories=tuple((str(c), str(n)) for c, n in cats) if cats else None)
 
 
-def as_model(model: ModelLike, device: Union[str, torch.device, None] = None) -> LoadedModel:
-    """A LoadedModel from a LoadedModel, a bare SVRNet (treated as fully trained) or a checkpoint
-    path (loaded onto ``device``, "auto" when None)."""
-    if isinstance(model, LoadedModel):
-        return model
-    if isinstance(model, SVRNet):
-        return LoadedModel(net=model.eval())
-    if isinstance(model, (str, os.PathLike)):
-        return load_model(model, "auto" if device is None else device)
-    raise TypeError(f"model must be a LoadedModel, an SVRNet or a checkpoint path, got {type(model).__name__}")
+def check_model(model: LoadedModel, name: str = "model") -> LoadedModel:
+    """Raises TypeError naming ``name`` unless ``model`` is a LoadedModel (a path is the command's
+    to load: ``load_model``; a network in memory is ``LoadedModel(net)``)."""
+    if not isinstance(model, LoadedModel):
+        raise TypeError(f"{name} must be a LoadedModel (load_model(path) reads a checkpoint, LoadedModel(net) "
+                        f"wraps a network), got {type(model).__name__}")
+    return model
 
 
 def check_images(images: torch.Tensor, image_size: int = 64, name: str = "images") -> torch.Tensor:
@@ -154,12 +148,12 @@ def check_images(images: torch.Tensor, image_size: int = 64, name: str = "images
 
 
 @torch.no_grad()
-def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
+def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
                 refine: Optional[bool] = None, clip: bool = True) -> SVRPrediction:
     """The network's coarse and (unless the model is a coarse-stage one) refined SDFs.
 
     Args:
-        model: LoadedModel, SVRNet or checkpoint path.
+        model: the network and its stage (``load_model``, or ``LoadedModel(net)``).
         images: (B, 4, 64, 64) float RGBA in [0, 1], RGB on white (as the datasets give them).
         batch_size: images per forward pass.
         refine: run the refiner (default: ``model.uses_refiner``).
@@ -170,7 +164,7 @@ def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
         SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32
         on the model's device, over the box ``[-half_side, half_side]^3`` (world units).
     """
-    m = as_model(model)
+    m = check_model(model)
     check_int(batch_size, "batch_size", minimum=1)
     x = check_images(images, m.image_size)
     use_refiner = m.uses_refiner if refine is None else bool(refine)
@@ -184,15 +178,13 @@ def predict_sdf(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
     coarse_t = torch.cat(coarse)
     refined_t = torch.cat(refined) if use_refiner else None
     if clip:
-        from svr.evaluation.voxels import clip_to_box
-
         hs = m.half_side
         coarse_t = clip_to_box(coarse_t, -hs, hs)
         refined_t = clip_to_box(refined_t, -hs, hs) if refined_t is not None else None
     return SVRPrediction(coarse=coarse_t, refined=refined_t)
 
 
-def predict(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
+def predict(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
             refine: Optional[bool] = None) -> renderer.SDFGrid:
     """SDF grids predicted from images: the model's final output (see ``predict_sdf``).
 
@@ -200,10 +192,9 @@ def predict(model: ModelLike, images: torch.Tensor, batch_size: int = 64,
         renderer.SDFGrid with values (B, N, N, N) float32 on the model's device and the box
         ``[-half_side, half_side]^3`` (world, y up, NMR ShapeNet frame).
     """
-    m = as_model(model)
-    out = predict_sdf(m, images, batch_size, refine)
-    return renderer.SDFGrid(out.final, -m.half_side, m.half_side)
+    out = predict_sdf(model, images, batch_size, refine)
+    return renderer.SDFGrid(out.final, -model.half_side, model.half_side)
 
 
-__all__ = ["LoadedModel", "ModelLike", "load_model", "as_model", "resolve_device", "check_images", "predict_sdf",
+__all__ = ["LoadedModel", "load_model", "check_model", "resolve_device", "check_images", "predict_sdf",
            "predict"]

@@ -51,6 +51,22 @@ def test_bad_targets_and_settings_are_one_line_and_leave_nothing(tmp_path, monke
         assert not out.exists(), (override, sorted(files_under(out)))
 
 
+@pytest.mark.parametrize("override, message", [("+nonsense=1", "nonsense: unknown setting"),
+                                               ("+optim.nope=1", "optim.nope: unknown setting"),
+                                               ("resume=sometimes", "resume must be"),
+                                               ("backend=3", "backend must be a string, got 3")])
+def test_a_bad_key_or_value_fails_before_any_folder(override, message, tmp_path, monkeypatch, capsys):
+    """Checked when the settings are built, before out_dir (given or the default under
+    paths.output_dir) is made."""
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    out = tmp_path / "out"
+    assert message in refused(["target=sphere", f"out_dir={out}", override], monkeypatch, capsys)
+    assert message in refused(["target=sphere", override], monkeypatch, capsys)
+    assert not out.exists() and list(cwd.iterdir()) == []
+
+
 def _previous_run(out: Path, checkpoint) -> dict[str, bytes]:
     """An out_dir as a finished run leaves it: hydra's record, settings, a log, results, a level checkpoint."""
     (out / ".hydra").mkdir(parents=True)

@@ -7,9 +7,10 @@ from hydra.errors import ConfigCompositionException
 
 from mvr import (EvalSettings, GridSettings, NoiseSettings, OptimSettings, RigSettings, Schedule,
                  TargetSettings)
-from mvr.__main__ import compose_config, reconstruct_kwargs
+from mvr.__main__ import MVRSettings, RuntimeSettings, compose_config, reconstruct_kwargs
 from mvr.reconstruct import default_scene
 from renderer import Scene, TraceSettings
+from sdfcommon.tooling.settings import PathSettings, build_settings
 
 # The head light without falloff of mvr/preset=paper (issue 4's settings).
 PAPER_SCENE = Scene(effects=("silhouette", "shading"), lights=(), camera_light=0.8, camera_light_falloff=False,
@@ -94,3 +95,23 @@ def test_threads_default_to_every_core():
         torch.set_num_threads(before)
     with pytest.raises(ValueError, match="threads"):
         configure_runtime(threads=0)
+
+
+def test_settings_are_built_from_mvr_yaml():
+    """configs/mvr.yaml becomes one MVRSettings; reconstruct_kwargs takes it or the composed config."""
+    settings = build_settings(compose_config(["target=torus"]))
+    assert isinstance(settings, MVRSettings) and isinstance(settings.paths, PathSettings)
+    assert settings.runtime == RuntimeSettings(threads=None, tune_malloc=True, flush_denormal=True)
+    assert settings.out_dir.startswith(f"{settings.paths.output_dir}/mvr/")
+    moved = build_settings(compose_config(["target=torus", "paths.output_dir=/elsewhere"]))
+    assert moved.out_dir.startswith("/elsewhere/mvr/")
+    assert reconstruct_kwargs(settings) == reconstruct_kwargs(compose_config(["target=torus"]))
+    assert isinstance(settings.optim, OptimSettings) and isinstance(settings.scene, Scene)
+    with pytest.raises(ValueError, match="nonsense: unknown setting"):
+        build_settings(compose_config(["target=torus", "+nonsense=1"]))
+    with pytest.raises(ValueError, match="optim.nope: unknown setting"):
+        build_settings(compose_config(["target=torus", "+optim.nope=1"]))
+    with pytest.raises(TypeError, match="runtime.tune_malloc must be"):
+        build_settings(compose_config(["target=torus", "runtime.tune_malloc=often"]))
+    with pytest.raises(ValueError, match="runtime.threads must be an integer >= 1"):
+        build_settings(compose_config(["target=torus", "runtime.threads=0"]))

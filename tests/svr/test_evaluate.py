@@ -19,9 +19,16 @@ import numpy as np
 import pytest
 import torch
 
+from hydra import compose as hydra_compose
+from hydra import initialize_config_module
+
+from sdfcommon.tooling.commands import CONFIG_MODULE, compose
+from sdfcommon.tooling.settings import PathSettings, build_settings
 from svr.data.datamodule import ProceduralDataModule
 from svr.data.nmr import NMR_CATEGORIES
-from svr.evaluate import evaluate, main
+from svr.evaluate import main
+from svr.evaluation.benchmark import evaluate, prepare_split
+from svr.evaluation.settings import EvalSettings
 from svr.inference.prediction import load_model, predict
 from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report
 from svr.evaluation.metrics import iou_protocol, iou_table
@@ -72,7 +79,7 @@ def make_tiny_run(root: Path) -> TinyRun:
     ]
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
         cfg = compose("train", overrides=overrides + TinyRun(Path(), cache).data_overrides())
-    result = train(cfg, root / "run")
+    result = train(build_settings(cfg), root / "run")
     _RUNS["run"] = TinyRun(result.checkpoint("refine", "final"), cache)
     return _RUNS["run"]
 
@@ -214,14 +221,62 @@ def test_errors_name_the_file_or_argument(tiny_run, tmp_path, capsys, monkeypatc
     assert "views[0] must be an integer in [0, 23], got 99" in expect_usage_error(
         main, [f"ckpt_path={tiny_run.checkpoint}", "views=[99]", f"output_dir={tmp_path / 'o4'}", *data],
         monkeypatch, capsys)
-    assert "batch_size must be an integer >= 1, got 'abc'" in expect_usage_error(
+    assert "batch_size must be an integer, got 'abc'" in expect_usage_error(
         main, [f"ckpt_path={tiny_run.checkpoint}", "batch_size=abc", f"output_dir={tmp_path / 'o5'}", *data],
         monkeypatch, capsys)
-    assert not any((tmp_path / f"o{k}").exists() for k in range(1, 6))  # refused runs leave nothing
+    assert "batch_size must be an integer >= 1, got 0" in expect_usage_error(
+        main, [f"ckpt_path={tiny_run.checkpoint}", "batch_size=0", f"output_dir={tmp_path / 'o6'}", *data],
+        monkeypatch, capsys)
+    assert not any((tmp_path / f"o{k}").exists() for k in range(1, 7))  # refused runs leave nothing
     with pytest.raises(ValueError, match="output_dir"):
         write_report(fake_result(["02691156"]), blocker / "sub")
     with pytest.raises(ValueError, match="split"):
         evaluate(load_model(tiny_run.checkpoint, "cpu"), tiny_run.datamodule(), "testing")
+    with pytest.raises(TypeError, match="model must be a LoadedModel"):  # a path is the command's to load
+        evaluate(tiny_run.checkpoint, tiny_run.datamodule(), "test")
+
+
+def test_settings_are_built_from_eval_yaml():
+    """configs/eval.yaml becomes EvalSettings; the evaluation's batch is the data's eval_batch_size
+    (one default), and the output folder defaults under paths.output_dir."""
+    cfg = compose("eval", ["ckpt_path=x.ckpt"])
+    settings = build_settings(cfg)
+    assert isinstance(settings, EvalSettings) and isinstance(settings.paths, PathSettings)
+    assert settings.batch_size == cfg.data.eval_batch_size == settings.data["eval_batch_size"]
+    assert build_settings(compose("eval", ["ckpt_path=x.ckpt", "data.eval_batch_size=5"])).batch_size == 5
+    assert settings.split == "test" and settings.views is None and settings.distributed == "auto"
+    assert settings.data["_target_"].endswith("ProceduralDataModule")
+    with initialize_config_module(CONFIG_MODULE, version_base="1.3"):
+        full = hydra_compose("eval", ["ckpt_path=x.ckpt", "paths.output_dir=/elsewhere"], return_hydra_config=True)
+    assert str(full.hydra.run.dir).startswith("/elsewhere/eval/")
+    with pytest.raises(ValueError, match="nonsense: unknown setting"):
+        build_settings(compose("eval", ["ckpt_path=x.ckpt", "+nonsense=1"]))
+    with pytest.raises(TypeError, match="compare_coarse must be"):
+        build_settings(compose("eval", ["ckpt_path=x.ckpt", "compare_coarse=maybe"]))
+
+
+def refused_before_any_folder(entry, args: list[str], prog: str, tmp_path: Path, monkeypatch, capsys) -> list[str]:
+    """Runs a command refused for its settings twice, with ``output_dir`` given and with the default
+    run folder (under ``paths.output_dir``, from a fresh working directory), and checks that neither
+    made a folder; returns the two error lines."""
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    out = tmp_path / "out"
+    lines = [expect_usage_error(entry, [*args, *where], monkeypatch, capsys, prog)
+             for where in ([f"output_dir={out}"], [])]
+    assert not out.exists() and list(cwd.iterdir()) == []
+    return lines
+
+
+@pytest.mark.parametrize("override, message", [("+nonsense=1", "nonsense: unknown setting"),
+                                               ("compare_coarse=maybe", "compare_coarse must be"),
+                                               ("num_workers=-1", "num_workers must be an integer >= 0")])
+def test_a_bad_key_or_value_is_one_line_and_makes_no_folder(override, message, tmp_path, monkeypatch, capsys):
+    """Checked when the settings are built: before the run folder, the model or the data."""
+    lines = refused_before_any_folder(main, ["ckpt_path=missing.ckpt", override], "sdfdiff-evaluate", tmp_path,
+                                      monkeypatch, capsys)
+    assert all(message in line for line in lines), lines
 
 
 @pytest.mark.slow

@@ -16,15 +16,19 @@ import trimesh
 from PIL import Image
 
 import renderer
-from svr.evaluate import evaluate
+from sdfcommon.tooling.commands import compose
+from sdfcommon.tooling.settings import PathSettings, build_settings
+from svr.evaluation.benchmark import evaluate
 from svr.evaluation.voxels import voxelize_mesh_nmr
 from svr.inference.images import load_image
-from svr.infer import infer_files, main, reconstruct
-from svr.inference.prediction import check_images, load_model, predict, predict_sdf, resolve_device
+from svr.inference.reconstruction import infer_files, reconstruct
+from svr.inference.settings import InferSettings
+from svr.infer import main
+from svr.inference.prediction import LoadedModel, check_images, load_model, predict, predict_sdf, resolve_device
 from svr.evaluation.metrics import voxel_iou
 
 from ..entry_points import expect_usage_error, run_entry
-from .test_evaluate import run_main, tiny_run  # noqa: F401  (the shared tiny training run)
+from .test_evaluate import refused_before_any_folder, run_main, tiny_run  # noqa: F401  (the shared run)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -84,10 +88,16 @@ def test_in_memory_api(tiny_run):
     both = predict_sdf(model, images)
     assert both.refined is not None and torch.allclose(both.refined, grid.values, atol=1e-5)
     assert not torch.allclose(both.coarse, both.refined)  # the tiny run trained the refiner
-    from_path = predict(tiny_run.checkpoint, images[:1]).values  # a path: loaded onto the "auto" device
+    from_path = predict(load_model(tiny_run.checkpoint), images[:1]).values  # loaded onto the "auto" device
     tol = 1e-5 if from_path.device.type == "cpu" else 1e-3  # a GPU's convolutions may run in TF32
     assert torch.allclose(from_path.cpu(), grid.values[:1], atol=tol)
-    assert torch.allclose(predict(model.net, images[:1]).values, grid.values[:1], atol=1e-5)  # a bare SVRNet
+    bare = predict(LoadedModel(model.net), images[:1]).values  # a network in memory, treated as fully trained
+    assert torch.allclose(bare, grid.values[:1], atol=1e-5)
+    for not_loaded in (tiny_run.checkpoint, str(tiny_run.checkpoint), model.net):  # only commands load paths
+        with pytest.raises(TypeError, match="model must be a LoadedModel"):
+            predict(not_loaded, images[:1])
+        with pytest.raises(TypeError, match="model must be a LoadedModel"):
+            reconstruct(not_loaded, images[:1], views=[])
     recs = reconstruct(model, images[:2], views=[0], render_size=24)
     assert all(r.watertight for r in recs)
     assert recs[0].renders.shape == (1, 24, 24, 3)
@@ -113,7 +123,7 @@ def test_rgb_plus_mask_equals_rgba_and_other_sizes_are_resized(tiny_run, tmp_pat
     out = tmp_path / "out"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        files = infer_files(tiny_run.checkpoint, tmp_path, out, views=[], formats=["npz"])
+        files = infer_files(load_model(tiny_run.checkpoint, "cpu"), tmp_path, out, views=[], formats=["npz"])
     assert len(files) == 3 and not (out / "b_mask_sdf.npz").exists()
 
 
@@ -133,12 +143,13 @@ def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch, capsy
     with pytest.raises(FileNotFoundError, match="missing.ckpt"):
         load_model(tmp_path / "missing.ckpt", "cpu")
 
+    model = load_model(tiny_run.checkpoint, "cpu")
     bad = tmp_path / "bad.png"
     bad.write_bytes(b"not an image")
     with pytest.raises(ValueError, match="bad.png"):
         load_image(bad)
     with pytest.raises(FileNotFoundError, match="nothere.png"):
-        infer_files(tiny_run.checkpoint, [tmp_path / "nothere.png"], tmp_path / "o")
+        infer_files(model, [tmp_path / "nothere.png"], tmp_path / "o")
     Image.new("RGB", (64, 64), "white").save(tmp_path / "rgb.png")
     with pytest.raises(ValueError, match="rgb.png.*mask"):
         load_image(tmp_path / "rgb.png")
@@ -146,7 +157,7 @@ def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch, capsy
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
     with pytest.raises(ValueError, match="output_dir"):
-        infer_files(tiny_run.checkpoint, [bad], blocker / "sub")
+        infer_files(model, [bad], blocker / "sub")
     assert "bad.png" in expect_usage_error(main, [f"ckpt_path={tiny_run.checkpoint}", f"images=[{bad}]",
                                                   f"output_dir={tmp_path / 'o2'}"], monkeypatch, capsys, "sdfdiff-infer")
     assert "junk.ckpt" in expect_usage_error(main, [f"ckpt_path={junk}", f"images=[{bad}]",
@@ -202,7 +213,7 @@ def test_command_line_refuses_bad_settings_naming_the_key(tiny_run, tmp_path, mo
     """Issue 17 items 9 and 10: each refusal is one line naming the setting, exit status 2."""
     image = rgba_disc(tmp_path / "disc.png")
     base = [f"ckpt_path={tiny_run.checkpoint}", f"images={image}", "device=cpu", "progress=false"]
-    cases = {"batch_size=abc": "batch_size must be an integer >= 1, got 'abc'",
+    cases = {"batch_size=abc": "batch_size must be an integer, got 'abc'",
              "batch_size=-1": "batch_size must be an integer >= 1, got -1",
              "batch_size=0": "batch_size must be an integer >= 1, got 0",
              "render_size=0": "render_size must be an integer >= 1, got 0",
@@ -223,9 +234,10 @@ def test_command_line_refuses_bad_settings_naming_the_key(tiny_run, tmp_path, mo
         load_model(junk, "cpu")
     assert "weights_only" not in str(err.value)
     # The Python API refuses them too (batch_size=-1 used to write nothing and report success).
+    model = load_model(tiny_run.checkpoint, "cpu")
     for kwargs in ({"batch_size": -1}, {"batch_size": 0}, {"render_size": 0}, {"views": [99]}):
         with pytest.raises(ValueError, match=next(iter(kwargs))):
-            infer_files(tiny_run.checkpoint, [image], tmp_path / "api", **kwargs)
+            infer_files(model, [image], tmp_path / "api", **kwargs)
 
 
 def test_an_image_above_the_decompression_bomb_limit_is_one_line(tiny_run, tmp_path, monkeypatch, capsys):
@@ -288,12 +300,36 @@ def test_inference_from_a_read_only_working_directory(tiny_run, tmp_path):
         proc = subprocess.run([*prefix, sys.executable, "-m", "svr.infer", f"ckpt_path={tiny_run.checkpoint}",
                                f"images={image}", f"output_dir={tmp_path / 'out'}", "device=cpu", "views=[]",
                                "formats=[npz]", "progress=false"],
-                              cwd=cwd, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                              cwd=cwd, env={**os.environ, "PYTHONPATH": os.pathsep.join(
+                                  [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])},
+                              capture_output=True, text=True,
                               timeout=300)
     finally:
         cwd.chmod(0o755)
     assert proc.returncode == 0, proc.stderr[-3000:]
     assert (tmp_path / "out" / "disc_sdf.npz").is_file() and list(cwd.iterdir()) == []
+
+
+def test_settings_are_built_from_infer_yaml():
+    cfg = compose("infer", ["ckpt_path=x.ckpt", "images=[a.png,b.png]"])
+    settings = build_settings(cfg)
+    assert isinstance(settings, InferSettings) and isinstance(settings.paths, PathSettings)
+    assert settings.images == ["a.png", "b.png"] and settings.output_dir is None and settings.masks is None
+    assert settings.formats == ["npz", "ply", "obj", "png"] and settings.views == [0, 6, 12, 18]
+    with pytest.raises(ValueError, match="nonsense: unknown setting"):
+        build_settings(compose("infer", ["ckpt_path=x.ckpt", "images=a.png", "+nonsense=1"]))
+    with pytest.raises(TypeError, match="require_watertight must be"):
+        build_settings(compose("infer", ["ckpt_path=x.ckpt", "images=a.png", "require_watertight=sometimes"]))
+
+
+@pytest.mark.parametrize("override, message", [("+nonsense=1", "nonsense: unknown setting"),
+                                               ("render_size=big", "render_size must be an integer, got 'big'"),
+                                               ("formats=[stl]", "formats must be a list among")])
+def test_a_bad_key_or_value_is_one_line_and_makes_no_folder(override, message, tmp_path, monkeypatch, capsys):
+    """Checked when the settings are built: before the run folder, the model or the images."""
+    lines = refused_before_any_folder(main, ["ckpt_path=missing.ckpt", "images=missing.png", override],
+                                      "sdfdiff-infer", tmp_path, monkeypatch, capsys)
+    assert all(message in line for line in lines), lines
 
 
 def test_output_folder_loses_what_a_killed_write_left(tmp_path):

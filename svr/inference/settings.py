@@ -1,0 +1,55 @@
+"""The typed settings of the inference command (configs/infer.yaml), built from the composed config
+by ``sdfcommon.tooling.settings.build_settings``: an unknown key, a value of the wrong type or one
+out of range fails with a message naming the key before the command makes its folder. Every
+default is written once, in the YAML."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Union
+
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.settings import PathSettings
+from svr.data.nmr import check_view_ids
+from svr.inference.reconstruction import check_formats
+
+
+@dataclass(frozen=True)
+class InferSettings:
+    """The inference command's settings (configs/infer.yaml; its comments say more).
+
+    Attributes:
+        ckpt_path: the checkpoint whose network reconstructs the images.
+        images: an image, a folder (every PNG/JPEG in it) or a list of them.
+        masks: one mask file per image (None: ``<stem><mask_suffix>.*`` beside the image if any).
+        mask_suffix: files named like this are masks, not inputs (None or "": no masks are looked for).
+        output_dir: where the files go; None: hydra's run folder (``<paths.output_dir>/infer/<time>``).
+        device: "auto", "cpu", "cuda" or "cuda:N".
+        batch_size: images per forward pass. views: NMR views of the preview renders (may be empty).
+        render_size: side of the preview renders. formats: among npz, ply, obj, png.
+        require_watertight: a mesh that is not watertight is an error rather than a warning.
+        backend: the renderer's march. progress: a progress bar. paths: as ``PathSettings``.
+    """
+
+    ckpt_path: str
+    images: Union[str, list[str]]
+    masks: Optional[list[Optional[str]]]
+    mask_suffix: Optional[str]
+    output_dir: Optional[str]
+    device: str
+    batch_size: int
+    views: list[int]
+    render_size: int
+    formats: list[str]
+    require_watertight: bool
+    backend: str
+    progress: bool
+    paths: PathSettings
+
+    def __post_init__(self) -> None:
+        check_int(self.batch_size, "batch_size", 1)
+        check_view_ids(self.views, "views")
+        check_int(self.render_size, "render_size", 1)
+        check_formats(self.formats)
+
+
+__all__ = ["InferSettings"]
