@@ -33,12 +33,12 @@ import trimesh
 from benchmarks.report import load_average, machine_info, run_mvr
 import mvr
 from mvr import MESH_FORMATS, SHAPES
-from mvr.__main__ import compose_config, reconstruct_kwargs
+from mvr.settings import compose_config, reconstruct_kwargs
 from mvr.error_map import error_picture
 from mvr.metrics import one_sided_distances
 from mvr.reconstruct import default_scene
+from sdfcommon.tooling.settings import build_settings
 from sdfcommon.tooling import outputs
-from sdfcommon.tooling.commands import config_value
 from sdfcommon.tooling.outputs import ensure_output_dir
 
 CONFIGS = {"default": (), "paper": ("mvr/preset=paper",)}
@@ -338,7 +338,7 @@ def main(argv: Optional[list[str]] = None) -> None:
     except (ValueError, FileNotFoundError) as exc:
         sys.exit(f"mvr_real_scans: error: {exc}")
     meshes += [PreparedMesh(s, s) for s in args.shapes]
-    threads = config_value(compose_config(["target=unused"]), "runtime.threads")
+    threads = build_settings(compose_config(["target=unused", "out_dir=unused"])).runtime.threads
     mvr.configure_runtime(threads=threads)  # configs/mvr.yaml's runtime, as the command sets it
     command = "python -m benchmarks.mvr_real_scans " + " ".join(sys.argv[1:] if argv is None else argv)
     rows = []

@@ -16,7 +16,7 @@ import numpy
 import torch
 
 from mvr import reconstruct
-from mvr.__main__ import compose_config, reconstruct_kwargs
+from mvr.settings import compose_config, reconstruct_kwargs
 from sdfcommon.tooling.outputs import atomic_write, write_text
 
 

@@ -14,8 +14,7 @@ import pytest
 import torch
 from omegaconf import OmegaConf
 
-from sdfcommon.tooling.commands import (USAGE_ERROR, config_choice, config_float, config_int, config_ints, config_object,
-                           hydra_entry, user_message)
+from sdfcommon.tooling.commands import USAGE_ERROR, hydra_entry, user_message
 from sdfcommon.tooling.serialization import load_torch, scrub_unsafe_advice
 
 from .entry_points import expect_usage_error, files_under, run_entry
@@ -154,25 +153,6 @@ def test_an_unwritable_run_folder_is_one_line(toy, tmp_path, monkeypatch, capsys
     assert line == "toy-cmd: error: hydra.run.dir: Interpolation key 'nope' not found"
 
 
-def test_getters_name_the_key():
-    cfg = OmegaConf.create({"batch_size": "abc", "n": -1, "lr": "fast", "split": "testing", "views": [0, 99],
-                            "flag": 1})
-    with pytest.raises(ValueError, match=r"^batch_size must be an integer >= 1, got 'abc'$"):
-        config_int(cfg, "batch_size", minimum=1)
-    with pytest.raises(ValueError, match=r"^n must be an integer >= 0, got -1$"):
-        config_int(cfg, "n", minimum=0)
-    with pytest.raises(ValueError, match=r"^lr must be a finite number >= 0, got 'fast'$"):
-        config_float(cfg, "lr", minimum=0)
-    with pytest.raises(ValueError, match=r"^split must be one of train, val, test, got 'testing'$"):
-        config_choice(cfg, "split", ("train", "val", "test"))
-    with pytest.raises(ValueError, match=r"^views\[1\] must be an integer in \[0, 23\], got 99$"):
-        config_ints(cfg, "views", 0, 23)
-    with pytest.raises(ValueError, match="flag must be one of True, False, got 1"):
-        config_choice(cfg, "flag", (True, False))
-    with pytest.raises(ValueError, match="absent is not set"):
-        config_int(cfg, "absent")
-
-
 @dataclass(frozen=True)
 class Toy:
     lr: float = 0.1
@@ -182,19 +162,6 @@ class Toy:
     def __post_init__(self):
         if not self.lr > 0:  # meets a string with "'>' not supported"
             raise ValueError("lr must be positive")
-
-
-def test_config_object_checks_field_types_first():
-    target = f"{__name__}.Toy"
-    good = OmegaConf.create({"toy": {"_target_": target, "lr": 1, "sizes": [4]}})
-    assert config_object(good, "toy") == Toy(lr=1, sizes=[4])
-    for bad, message in (({"lr": "fast"}, "toy.lr must be a number, got 'fast'"),
-                         ({"steps": 2.5}, "toy.steps must be an integer, got 2.5"),
-                         ({"sizes": ["a"]}, "toy.sizes must be a list of (an integer), got ['a']")):
-        cfg = OmegaConf.create({"toy": {"_target_": target, **bad}})
-        with pytest.raises(TypeError) as err:
-            config_object(cfg, "toy")
-        assert str(err.value) == message
 
 
 def test_instantiation_errors_are_unwrapped_and_named_by_key():

@@ -4,6 +4,7 @@ find their configs and print their help."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import tomllib
@@ -31,9 +32,14 @@ def test_every_package_of_the_tree_is_declared():
 
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
+    """The wheel of a clean copy of the source (a build/ folder left in the checkout by an earlier
+    build could hold modules that no longer exist)."""
+    source = tmp_path_factory.mktemp("source") / "sdfdiff"
+    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(
+        ".git", ".venv", "build", "*.egg-info", "outputs", "multirun", "cache", "__pycache__", "docs", "tests"))
     out = tmp_path_factory.mktemp("wheel")
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out),
-                    str(ROOT)], check=True, capture_output=True, text=True, timeout=600)
+                    str(source)], check=True, capture_output=True, text=True, timeout=600)
     (found,) = out.glob("sdfdiff-*.whl")
     return found
 

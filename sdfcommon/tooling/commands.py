@@ -26,12 +26,10 @@ from hydra import initialize_config_module
 from hydra.core.utils import JobReturn, JobStatus
 from hydra.errors import InstantiationException
 from hydra.experimental.callback import Callback
-from hydra.utils import get_class, instantiate
 from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 from PIL import Image
 
-from sdfcommon.tooling.checks import check_field_types, check_float, check_int
 from sdfcommon.tooling.outputs import atomic_write, make_writable_folder
 from sdfcommon.tooling.serialization import scrub_unsafe_advice
 from sdfcommon.tooling.settings import build_settings
@@ -44,15 +42,6 @@ USAGE_ERROR = 2
 # Files a run writes about itself (not results): cleaned after a failed run that wrote nothing else.
 RUN_RECORDS = ("config.yaml", "settings.json")
 _RECORD_BYTES = 1 << 20  # records above this are not restored (a config or settings file is a few KiB)
-
-
-class UserError(ValueError):
-    """A mistake in a command's settings or files; ``main()`` reports it in one line."""
-
-
-def fail(message: str) -> None:
-    """Raises ``UserError(message)``: the command stops with ``<prog>: error: <message>``."""
-    raise UserError(message)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -316,80 +305,6 @@ def hydra_entry(config_name: str, run: Callable[[Any], Any], config_path: str = 
     return main
 
 
-# ------------------------------------------------------------------------------------------------
-# Config getters: each names its key
-
-
-_MISSING = object()
-
-
-def config_value(cfg: DictConfig, key: str) -> Any:
-    """``cfg``'s value at the dotted ``key`` as plain Python (lists and dicts resolved).
-
-    Raises:
-        omegaconf MissingMandatoryValue for ``???``; UserError when the key is not in the config.
-    """
-    value = OmegaConf.select(cfg, key, default=_MISSING, throw_on_missing=True)
-    if value is _MISSING:
-        fail(f"{key} is not set (the config has no such key)")
-    return OmegaConf.to_container(value, resolve=True) if OmegaConf.is_config(value) else value
-
-
-def config_int(cfg: DictConfig, key: str, minimum: Optional[int] = None, maximum: Optional[int] = None) -> int:
-    """An integer setting: ``batch_size=abc`` -> "batch_size must be an integer >= 1, got 'abc'"."""
-    return check_int(config_value(cfg, key), key, minimum, maximum)
-
-
-def config_float(cfg: DictConfig, key: str, minimum: Optional[float] = None,
-                 maximum: Optional[float] = None) -> float:
-    """A finite number (an int is accepted)."""
-    return check_float(config_value(cfg, key), key, minimum, maximum)
-
-
-def config_choice(cfg: DictConfig, key: str, choices: Sequence[Any]) -> Any:
-    """One of ``choices`` (compared as given: ``true``/``false`` arrive as bools)."""
-    value = config_value(cfg, key)
-    if not any(type(value) is type(c) and value == c for c in choices):  # 1 is not True
-        fail(f"{key} must be one of {', '.join(str(c) for c in choices)}, got {value!r}")
-    return value
-
-
-def config_ints(cfg: DictConfig, key: str, minimum: Optional[int] = None, maximum: Optional[int] = None,
-                allow_null: bool = False) -> Optional[list[int]]:
-    """A list of integers (``views=[0,6]``); a single integer is a list of one; null when allowed."""
-    value = config_value(cfg, key)
-    if value is None and allow_null:
-        return None
-    items = [value] if isinstance(value, int) and not isinstance(value, bool) else value
-    if not isinstance(items, list):
-        fail(f"{key} must be a list of integers{' or null' if allow_null else ''}, got {value!r}")
-    return [check_int(v, f"{key}[{i}]", minimum, maximum) for i, v in enumerate(items)]
-
-
-def config_bool(cfg: DictConfig, key: str) -> bool:
-    """true or false."""
-    value = config_value(cfg, key)
-    if not isinstance(value, bool):
-        fail(f"{key} must be true or false, got {value!r}")
-    return value
-
-
-def config_object(cfg: DictConfig, key: str, **kwargs: Any) -> Any:
-    """Instantiates the ``_target_`` node at ``key`` (``hydra.utils.instantiate``), after checking
-    its values against the target dataclass's field types (``check_field_types``): ``optim.lr=fast``
-    -> "optim.lr must be a number, got 'fast'"."""
-    node = OmegaConf.select(cfg, key, throw_on_missing=True)
-    values = config_value(cfg, key)
-    if isinstance(values, dict) and "_target_" in values:
-        try:
-            cls = get_class(values["_target_"])
-        except Exception:  # let instantiate report an unknown target
-            cls = None
-        if cls is not None:
-            check_field_types(cls, {k: v for k, v in values.items() if not k.startswith("_")}, key)
-    return instantiate(node, **kwargs)
-
-
 def _first_set(*values: Any) -> Any:
     return next((v for v in values if v is not None and v != ""), None)
 
@@ -417,7 +332,5 @@ OmegaConf.register_new_resolver("first_set", _first_set, replace=True)
 OmegaConf.register_new_resolver("config_options", _config_options, replace=True)
 
 
-__all__ = ["hydra_entry", "compose", "user_message", "UserError", "fail", "USAGE_ERROR", "RUN_RECORDS",
-           "RunFolderGuard", "RunFolderSnapshot", "config_value", "config_int",
-           "config_float", "config_choice", "config_ints", "config_bool", "config_object", "CONFIG_MODULE",
-           "config_folder", "config_group_options"]
+__all__ = ["hydra_entry", "compose", "user_message", "USAGE_ERROR", "RUN_RECORDS",
+           "RunFolderGuard", "RunFolderSnapshot", "CONFIG_MODULE", "config_folder", "config_group_options"]

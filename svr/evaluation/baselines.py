@@ -13,7 +13,7 @@ show that it learnt shape rather than looked it up (published on NMR ShapeNet: 0
 object box as predictions are (``svr.evaluation.voxels.clip_to_box``), through the protocol, the
 ceiling of what a model with that grid can score (procedural data only, since it needs the
 analytic shapes). ``score_baselines`` returns their per-image IoU, aligned with an
-``svr.evaluate.EvaluationResult``'s images.
+``svr.evaluation.tables.EvaluationResult``'s images.
 """
 from __future__ import annotations
 
@@ -220,7 +220,7 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
     Args:
         names: baselines to score (``BASELINES``); "oracle" is skipped where the data is not a
             generated procedural dataset (``svr.data.procedural.generator.is_procedural_dataset``: real NMR data).
-        result: ``svr.evaluate.EvaluationResult`` (its category, object_index and view arrays).
+        result: ``svr.evaluation.tables.EvaluationResult`` (its category, object_index and view arrays).
         objects: the evaluated split's dataset; train: the training split of the same data
             (same categories, same order).
         half_side, grid_resolution: the model's grid (for the oracle).

@@ -1,11 +1,9 @@
-"""Checkpoints of single-view training, read back: checkpoint -> network.
-
-One module for everything that loads a training checkpoint (training's stage hand-over and resume
-checks, evaluation, inference, the demo), without importing Lightning: a checkpoint is a dict of
-tensors and plain values (read weights-only), with our metadata under ``CHECKPOINT_KEY`` (the
-stage, the model config that rebuilds the network, the grid's half side and resolution, the
-categories, training seconds).
-"""
+"""Checkpoints of single-view training read back (checkpoint -> network): the one module for
+everything that loads a training checkpoint (training's stage hand-over and resume checks,
+evaluation, inference, the demo), without importing Lightning. A checkpoint is a dict of tensors and
+plain values (read weights-only), with our metadata under ``CHECKPOINT_KEY`` (the stage, the model
+config that rebuilds the network, the grid's half side and resolution, the categories, training
+seconds)."""
 from __future__ import annotations
 
 from typing import Any

@@ -6,7 +6,7 @@ import pytest
 
 from benchmarks.mvr_parameter_study import _studies, run_study
 from mvr import configure_runtime
-from mvr.__main__ import compose_config, reconstruct_kwargs
+from mvr.settings import compose_config, reconstruct_kwargs
 
 
 def test_every_setting_composes_into_reconstruct_arguments(tmp_path):

@@ -7,7 +7,7 @@ from hydra.errors import ConfigCompositionException
 
 from mvr import (EvalSettings, GridSettings, NoiseSettings, OptimSettings, RigSettings, Schedule,
                  TargetSettings)
-from mvr.__main__ import MVRSettings, RuntimeSettings, compose_config, reconstruct_kwargs
+from mvr.settings import MVRSettings, RuntimeSettings, compose_config, reconstruct_kwargs
 from mvr.reconstruct import default_scene
 from renderer import Scene, TraceSettings
 from sdfcommon.tooling.settings import PathSettings, build_settings

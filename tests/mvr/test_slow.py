@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from mvr import configure_runtime, reconstruct
-from mvr.__main__ import compose_config, reconstruct_kwargs
+from mvr.settings import compose_config, reconstruct_kwargs
 
 pytestmark = pytest.mark.slow
 

@@ -345,7 +345,7 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
 def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
     """torchrun, 2 processes, 9 images (5 + 4): the same files as a single-process evaluation."""
     from svr.evaluation.baselines import BASELINES
-    from svr.evaluate import add_baselines, evaluate
+    from svr.evaluation.benchmark import add_baselines, evaluate
     from svr.inference.prediction import load_model
     from svr.evaluation.tables import write_report
 
@@ -375,12 +375,13 @@ def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
 
 
 def test_evaluate_distributed_needs_a_process_group(ddp_run):
-    from svr.evaluate import evaluate
+    from svr.evaluation.benchmark import evaluate
+    from svr.inference.prediction import load_model
 
     ckpt = ddp_run["run"] / "coarse" / "checkpoints" / "final.ckpt"
     with pytest.raises(ValueError, match="distributed"):
-        evaluate(ckpt, datamodule(ddp_run["cache"], ddp_run["settings"]), "test", views=[0], progress=False,
-                 distributed=True)
+        evaluate(load_model(ckpt, "cpu"), datamodule(ddp_run["cache"], ddp_run["settings"]), "test", views=[0],
+                 progress=False, distributed=True)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -1,0 +1,85 @@
+"""The multi-view command's typed settings: ``MVRSettings``, built from configs/mvr.yaml by
+``sdfcommon.tooling.settings.build_settings`` (an unknown or mistyped key fails before anything is
+written), its ``RuntimeSettings``, and the helpers benchmarks and tests use to run exactly the
+command's settings (``compose_config``, ``reconstruct_kwargs``)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence, Union
+
+from omegaconf import DictConfig
+
+from mvr.optimize import OptimSettings
+from mvr.reconstruct import EvalSettings, GridSettings, NoiseSettings, RigSettings, TargetSettings
+from mvr.schedule import Schedule
+from renderer import Scene, TraceSettings
+from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.commands import compose
+from sdfcommon.tooling.settings import PathSettings, build_settings
+
+
+@dataclass(frozen=True)
+class RuntimeSettings:
+    """How the process runs (``mvr.configure_runtime``): ``threads`` for torch and numba (None:
+    every core this process may use), glibc's heap kept (``tune_malloc``), denormal floats flushed."""
+
+    threads: Optional[int]
+    tune_malloc: bool
+    flush_denormal: bool
+
+    def __post_init__(self) -> None:
+        if self.threads is not None:
+            check_int(self.threads, "runtime.threads", 1)
+
+
+@dataclass(frozen=True)
+class MVRSettings:
+    """The multi-view command's settings (configs/mvr.yaml; its comments say more).
+
+    Attributes:
+        target: a built-in shape (``mvr.SHAPES``) or a watertight mesh file.
+        out_dir: the run's folder (a rerun resumes after its last finished level).
+        seed, resume, progress, backend: as ``mvr.reconstruct``'s.
+        runtime: as ``RuntimeSettings``. paths: as ``PathSettings``.
+        rig, grid, target_settings, schedule, optim, noise, evaluation, scene, trace: the settings
+            objects ``mvr.reconstruct`` takes under those names.
+    """
+
+    target: str
+    out_dir: str
+    seed: int
+    resume: bool
+    progress: bool
+    backend: str
+    runtime: RuntimeSettings
+    rig: RigSettings
+    grid: GridSettings
+    target_settings: TargetSettings
+    schedule: Schedule
+    optim: OptimSettings
+    noise: NoiseSettings
+    evaluation: EvalSettings
+    scene: Scene
+    trace: TraceSettings
+    paths: PathSettings
+
+
+# The fields of MVRSettings that are keyword arguments of mvr.reconstruct (target and out_dir aside).
+RECONSTRUCT_KEYS = ("rig", "grid", "target_settings", "schedule", "optim", "noise", "evaluation", "scene", "trace",
+                    "backend", "seed", "resume", "progress")
+
+
+def reconstruct_kwargs(settings: Union[MVRSettings, DictConfig]) -> dict:
+    """The keyword arguments of ``mvr.reconstruct`` (all but target and out_dir) from the command's
+    settings, or from a composed mvr config (built into them first, ``build_settings``)."""
+    if isinstance(settings, DictConfig):
+        settings = build_settings(settings)
+    return {key: getattr(settings, key) for key in RECONSTRUCT_KEYS}
+
+
+def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
+    """configs/mvr.yaml with hydra overrides, outside a hydra run (for benchmarks and tests)."""
+    return compose("mvr", overrides)
+
+
+__all__ = ["MVRSettings", "RuntimeSettings", "RECONSTRUCT_KEYS", "reconstruct_kwargs", "compose_config"]

@@ -1,0 +1,92 @@
+"""sdfcommon.tooling.settings: typed settings from configs refuse unknown keys and mistyped values
+(naming the key), build nested dataclasses, keep components as plain dicts, and turn back into the
+config they came from; every command's YAML builds its settings."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Optional
+
+import pytest
+from omegaconf import OmegaConf
+
+from sdfcommon.tooling.commands import compose
+from sdfcommon.tooling.settings import Component, build_dataclass, build_settings, settings_record
+
+
+@dataclass(frozen=True)
+class Inner:
+    lr: float
+    steps: int = 3
+
+    def __post_init__(self) -> None:
+        if not self.lr > 0:
+            raise ValueError(f"lr must be positive, got {self.lr!r}")
+
+
+@dataclass(frozen=True)
+class Outer:
+    name: str
+    inner: Inner
+    sizes: list[int]
+    part: Optional[Component] = None
+
+
+TARGET = f"{__name__}.Outer"
+
+
+def test_builds_nested_dataclasses_and_keeps_components():
+    cfg = OmegaConf.create({"_target_": TARGET, "name": "a", "inner": {"lr": 0.5}, "sizes": [1, 2],
+                            "part": {"_target_": "torch.nn.Identity"}, "hydra": {"ignored": True}})
+    settings = build_settings(cfg)
+    assert settings == Outer("a", Inner(0.5), [1, 2], {"_target_": "torch.nn.Identity"})
+    assert isinstance(settings.part, dict)
+
+
+@pytest.mark.parametrize("values, error, message", [
+    ({"nope": 1}, ValueError, "nope: unknown setting (Outer has: name, inner, sizes, part)"),
+    ({"inner": {"lr": 0.5, "nope": 1}}, ValueError, "inner.nope: unknown setting (Inner has: lr, steps)"),
+    ({"name": 3}, TypeError, "name must be a string, got 3"),
+    ({"inner": {"lr": "fast"}}, TypeError, "inner.lr must be a number, got 'fast'"),
+    ({"inner": {"lr": 0.5, "steps": 2.5}}, TypeError, "inner.steps must be an integer, got 2.5"),
+    ({"sizes": ["a"]}, TypeError, "sizes must be a list of (an integer), got ['a']"),
+    ({"inner": {"lr": -1.0}}, ValueError, "inner.lr must be positive, got -1.0"),  # __post_init__, named by key
+    ({"inner": {"steps": 1}}, ValueError, "inner.lr must be set"),
+])
+def test_refuses_unknown_keys_and_wrong_values_naming_the_key(values, error, message):
+    good = {"name": "a", "inner": {"lr": 0.5}, "sizes": [1]}
+    merged = {**good, **values}
+    if "inner" in values:
+        merged["inner"] = values["inner"]
+    with pytest.raises(error) as err:
+        build_dataclass(Outer, merged)
+    assert str(err.value) == message
+
+
+def test_a_target_must_name_the_expected_class_and_a_dataclass():
+    with pytest.raises(TypeError, match="inner._target_ must name"):
+        build_dataclass(Outer, {"name": "a", "sizes": [], "inner": {"_target_": TARGET, "lr": 1.0}})
+    with pytest.raises(TypeError, match="_target_ must name a dataclass"):
+        build_settings({"_target_": "torch.nn.Identity"})
+    with pytest.raises(ValueError, match="no _target_"):
+        build_settings({"name": "a"})
+
+
+def test_the_record_builds_the_same_settings_back():
+    settings = Outer("a", Inner(0.5, 4), [1, 2], {"_target_": "torch.nn.Identity", "x": [1]})
+    record = settings_record(settings)
+    assert record == {"_target_": TARGET, "name": "a", "inner": {"_target_": f"{__name__}.Inner", "lr": 0.5, "steps": 4},
+                      "sizes": [1, 2], "part": {"_target_": "torch.nn.Identity", "x": [1]}}
+    assert build_settings(record) == settings
+
+
+@pytest.mark.parametrize("name, overrides", [
+    ("train", []), ("train", ["experiment=demo"]), ("train", ["experiment=paper_nmr", "data.root=/x"]),
+    ("demo", []), ("eval", ["ckpt_path=x.ckpt"]), ("infer", ["ckpt_path=x.ckpt", "images=a.png"]),
+    ("mvr", ["target=torus"]),
+])
+def test_every_commands_yaml_builds_its_settings_and_refuses_an_unknown_key(name, overrides):
+    settings = build_settings(compose(name, overrides))
+    assert dataclasses.is_dataclass(settings) and build_settings(settings_record(settings)) == settings
+    with pytest.raises(ValueError, match="nonsense: unknown setting"):
+        build_settings(compose(name, [*overrides, "+nonsense=1"]))
