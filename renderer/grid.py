@@ -216,7 +216,6 @@ class SDFGrid:
         flat, b, shape = self._flatten(points, batch_index)
         i0, w = self._cells(flat)
         dt, dev = self.values.dtype, self.values.device
-        k = flat.shape[0]
         tables = _stencil_tables(dev, self.resolution, dt)
         # The 32 distinct vertices the central differences at the cell's 8 corners read, as flat
         # indices (K, 32); on the box faces the differences are one-sided (the clamp repeats a

@@ -217,8 +217,8 @@ class RunFolderGuard(Callback):
     """The hydra callback of every command (``configs/hydra/default.yaml``): the one error handling
     and clean-up described in the module docstring.
 
-    Before hydra creates the run folder (``on_run_start``) it builds the command's settings once
-    (``build_settings``: an unknown or mistyped key is one line, and nothing is made), takes the
+    Before hydra creates the run folder (``on_run_start``) it builds the command's settings as the
+    command will (``build_settings``: an unknown or mistyped key is one line, and nothing is made), takes the
     folder's snapshot and checks that the folder can be created and written. After the job
     (``on_job_end``) it undoes a failed run's records and reports a user's mistake in one line;
     a bug is left to hydra (its traceback, exit status 1). The command's name in messages is

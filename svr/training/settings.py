@@ -5,14 +5,13 @@ config by ``sdfcommon.tooling.settings.build_settings``: ``TrainSettings`` holds
 the Lightning trainer, its callbacks and loggers. Every default is written once, in the YAML."""
 from __future__ import annotations
 
-import copy
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Optional, Union
+from typing import Optional, Union
 
 import renderer
 from sdfcommon.tooling.checks import check_int
-from sdfcommon.tooling.settings import Component, PathSettings, build_dataclass
+from sdfcommon.tooling.settings import Component, PathSettings, build_dataclass, settings_record
 from svr.inference.checkpoints import STAGES
 from svr.losses import LossWeights
 
@@ -125,19 +124,12 @@ class TrainSettings:
         extra = self.stage.of(stage).loss
         if not extra:
             return self.loss
-        merged = _merge(_as_dict(self.loss), extra)
+        merged = _merge(settings_record(self.loss), extra)
         return build_dataclass(LossSettings, merged, f"stage.{stage}.loss")
 
     def with_ckpt_path(self, ckpt_path: Optional[str]) -> "TrainSettings":
         """A copy that resumes from (or starts with the weights of) ``ckpt_path``."""
         return dataclasses.replace(self, ckpt_path=ckpt_path)
-
-
-def _as_dict(obj: Any) -> Any:
-    """A dataclass as nested plain dicts (one level of dataclass fields at a time, components kept)."""
-    if dataclasses.is_dataclass(obj):
-        return {f.name: _as_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    return copy.deepcopy(obj)
 
 
 def _merge(base: dict, extra: dict) -> dict:
@@ -147,10 +139,4 @@ def _merge(base: dict, extra: dict) -> dict:
     return out
 
 
-def as_plain_dict(settings: Any) -> dict:
-    """Settings as nested plain dicts (for loggers' hyperparameters)."""
-    return _as_dict(settings)
-
-
-__all__ = ["LossSettings", "StageSettings", "ScheduleSettings", "TrainSettings", "as_plain_dict",
-           "SHADING_MODES", "INIT_FROM"]
+__all__ = ["LossSettings", "StageSettings", "ScheduleSettings", "TrainSettings", "SHADING_MODES", "INIT_FROM"]

@@ -25,7 +25,8 @@ from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
 from sdfcommon.tooling.host_memory import keep_freed_memory
-from sdfcommon.tooling.outputs import remove_stale_temporaries, write_csv, write_text
+from sdfcommon.tooling.outputs import remove_stale_temporaries, write_csv
+from sdfcommon.tooling.settings import settings_record
 
 from svr.distributed import launch_rank_is_zero
 from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint, load_network_weights
@@ -33,7 +34,7 @@ from svr.models.module import SVRLightningModule
 from svr.models.network import SVRNet
 from svr.training.callbacks import AtomicCheckpointIO
 from svr.training.run_folder import RunFolder
-from svr.training.settings import LossSettings, TrainSettings, as_plain_dict
+from svr.training.settings import LossSettings, TrainSettings
 from svr.training.stopping import SaveOnStop, StopRequest, TrainingStopped
 
 log = logging.getLogger(__name__)
@@ -310,7 +311,7 @@ def train(settings: TrainSettings, run_dir: str | Path) -> TrainResult:
 def _run_schedule(settings: TrainSettings, run: RunFolder, stop: StopRequest, start: int, resume: bool,
                   resume_step: Optional[int], ckpt_path, net: SVRNet, datamodule) -> TrainResult:
     schedule = list(settings.stage.schedule)
-    hyperparameters = as_plain_dict(settings)
+    hyperparameters = settings_record(settings)
     results: list[StageResult] = []
     for i, stage in enumerate(schedule[start:], start=start):
         pl.seed_everything(int(settings.seed) + i, workers=True)

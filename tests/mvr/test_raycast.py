@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 import trimesh
 
 from mvr.raycast import EmbreeCaster, TriangleGrid, embree_available, mesh_caster

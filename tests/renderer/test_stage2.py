@@ -12,7 +12,7 @@ import sys
 import pytest
 import torch
 
-from renderer import (Cameras, DirectionalLight, PointLight, SDFGrid, Scene, TraceSettings, backends, fused,
+from renderer import (Cameras, DirectionalLight, PointLight, SDFGrid, Scene, backends, fused,
                       kernels, render, shade_trace, sphere_trace)
 
 from .analytic import sphere_sdf, torus_sdf

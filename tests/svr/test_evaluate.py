@@ -27,7 +27,7 @@ from sdfcommon.tooling.settings import PathSettings, build_settings
 from svr.data.datamodule import ProceduralDataModule
 from svr.data.nmr import NMR_CATEGORIES
 from svr.evaluate import main
-from svr.evaluation.benchmark import evaluate, prepare_split
+from svr.evaluation.benchmark import evaluate
 from svr.evaluation.settings import EvalSettings
 from svr.inference.prediction import load_model, predict
 from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report

@@ -12,7 +12,7 @@ import torch
 import renderer
 import svr.data.procedural.generator as procedural
 from svr.data.procedural.csg import (BOX, CAPSULE, CONE, CYLINDER, SPHERE, TORUS, CSGBuilder, CSGShape, rotation,
-                          surface_normals, trace_rays)
+                          trace_rays)
 from svr.data.nmr import NMRDataset, nmr_file
 from svr.data.procedural.generator import (ALL_CATEGORIES, DEFAULT_SHADING, ProceduralSettings, load_shading, make_shape,
                                  render_shape, voxelize_shape)
