@@ -18,20 +18,13 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 from hydra.core.hydra_config import HydraConfig
-from hydra.utils import instantiate
 from omegaconf import OmegaConf
 
-import renderer
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.commands import hydra_entry
 from sdfcommon.tooling.outputs import write_json, write_text
 from sdfcommon.tooling.settings import settings_record
-from svr.evaluation.baselines import BASELINES
-from svr.evaluation.benchmark import add_baselines, evaluate
-from svr.evaluation.tables import format_table, write_report
-from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint, load_network
-from svr.inference.prediction import load_model
-from svr.inference.showcase import showcase
+from svr.evaluation.run_scores import score_run
 from svr.training.resume import continued_settings
 from svr.training.run_folder import RunFolder
 from svr.training.settings import TrainSettings
@@ -78,68 +71,6 @@ DEMO_KEYS = tuple(f.name for f in dataclasses.fields(DemoSettings) if f.name not
 QUIET_OVERRIDES = ("data.progress=false", "trainer.enable_progress_bar=false", "callbacks.progress_bar=null")
 
 
-def evaluate_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str = "test", progress: bool = True,
-                 protocol_workers: int = 0) -> dict:
-    """Scores a finished run with the benchmark protocol: its last stage's checkpoint, its coarse
-    stage's and every baseline (``svr.evaluation.baselines``) on the same images; writes the
-    evaluation's files, ``predictions.png`` and ``meshes/`` into ``out_dir``.
-
-    Returns:
-        ``{"table": markdown, "iou": the iou.json dict, "files": [paths]}``.
-    """
-    dm = instantiate(settings.data)
-    dm.prepare_data()
-    schedule = list(settings.stage.schedule)
-    final_ckpt, coarse_ckpt = run.best_or_final(schedule[-1]), run.best_or_final(schedule[0])
-    kwargs = dict(progress=progress, protocol_workers=protocol_workers)  # batches: the data's eval_batch_size
-    model = load_model(final_ckpt, "cpu")
-    result = evaluate(model, dm, split, **kwargs)
-    extra = {}
-    if coarse_ckpt != final_ckpt:
-        extra["coarse stage alone"] = evaluate(load_model(coarse_ckpt, "cpu"), dm, split, **kwargs).table
-    result = add_baselines(result, dm, BASELINES, model, progress=progress)
-    label = f"ours ({schedule[-1]} stage, {result.output})"
-    files = write_report(result, out_dir, extra_rows=extra, label=label)
-
-    net, _ = load_network(final_ckpt)
-    coarse_net, _ = load_network(coarse_ckpt)
-    scene = (dm.shading.scene(effects=("shading",)) if dm.shading is not None else
-             renderer.Scene(effects=("shading",), background=(1.0, 1.0, 1.0)))
-    pictures = showcase(net, coarse_net, dm.dataset(split), dm.categories, scene, out_dir)
-    summary = json.loads(Path(files["json"]).read_text())
-    return {"table": format_table(result, extra, label), "iou": summary,
-            "files": [str(p) for p in files.values()] + [str(p) for p in pictures]}
-
-
-def stage_steps(settings: TrainSettings, run: RunFolder) -> dict[str, dict[str, Optional[int]]]:
-    """Per scheduled stage, the steps planned and the steps its ``final.ckpt`` reached (None where
-    the stage has not finished; fewer: the stage's time cap stopped it)."""
-    out: dict[str, dict[str, Optional[int]]] = {}
-    for stage in settings.stage.schedule:
-        reached = int(load_checkpoint(run.final(stage))["global_step"]) if run.finished(stage) else None
-        out[str(stage)] = {"planned": settings.stage.of(stage).max_steps, "reached": reached}
-    return out
-
-
-def resume_point(run_dir: Path, schedule: Sequence[str]) -> tuple[bool, Optional[Path]]:
-    """Where a demo run left off: (finished, checkpoint to resume from): finished when the last
-    scheduled stage wrote ``final.ckpt``; otherwise its latest checkpoint (None: start afresh)."""
-    run = RunFolder(Path(run_dir))
-    if run.finished(schedule[-1]):
-        return True, run.final(schedule[-1])
-    return False, run.latest_checkpoint(schedule)
-
-
-def run_train_seconds(run_dir: Path, schedule: Sequence[str]) -> Optional[float]:
-    """The whole run's training seconds: the sum of the ``train_seconds`` its stages' final
-    checkpoints record (kept over resumes); None when a stage has not finished."""
-    run = RunFolder(Path(run_dir))
-    if not all(run.finished(stage) for stage in schedule):
-        return None
-    return sum(float(load_checkpoint(run.final(stage))[CHECKPOINT_KEY].get("train_seconds", 0.0))
-               for stage in schedule)
-
-
 def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> dict:
     """The demo (see the module docstring).
 
@@ -162,7 +93,7 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
     schedule = list(train_settings.stage.schedule)
     start = time.time()
     train_wall = None
-    finished, resume = (False, None) if settings.fresh else resume_point(folder.root, schedule)
+    finished, resume = (False, None) if settings.fresh else folder.resume_point(schedule)
     if settings.eval_only:
         if not finished:
             raise ValueError(f"eval_only=true needs a finished run in {folder.root} "
@@ -185,10 +116,10 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
             raise
         train_wall = time.time() - start
     t_eval = time.time()
-    result = evaluate_run(train_settings, folder, out_dir, progress=not settings.quiet,
+    result = score_run(train_settings, folder, out_dir, progress=not settings.quiet,
                           protocol_workers=settings.protocol_workers)
-    steps = stage_steps(train_settings, folder)
-    train_seconds = run_train_seconds(folder.root, schedule)
+    steps = folder.steps(schedule, {s: train_settings.stage.of(s).max_steps for s in schedule})
+    train_seconds = folder.train_seconds(schedule)
     timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,
                "eval_seconds": time.time() - t_eval, "total_seconds_this_command": time.time() - start,
                "resumed": resume is not None, "steps": steps}

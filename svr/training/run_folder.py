@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
-from svr.inference.checkpoints import STAGES
+from svr.inference.checkpoints import CHECKPOINT_KEY, STAGES, load_checkpoint
 
 CONFIG_FILE = "config.yaml"
 CHECKPOINTS = "checkpoints"
@@ -64,6 +64,28 @@ class RunFolder:
             if path.is_file():
                 return path
         raise FileNotFoundError(f"no {BEST} or {FINAL} in {self.checkpoints(stage)}: has the {stage} stage run?")
+
+    def resume_point(self, schedule: Sequence[str]) -> tuple[bool, Optional[Path]]:
+        """Where a run left off: (finished, checkpoint to resume from): finished when the last
+        scheduled stage wrote ``final.ckpt``; otherwise its latest checkpoint (None: start afresh)."""
+        if self.finished(schedule[-1]):
+            return True, self.final(schedule[-1])
+        return False, self.latest_checkpoint(schedule)
+
+    def train_seconds(self, schedule: Sequence[str]) -> Optional[float]:
+        """The whole run's training seconds: the sum of the ``train_seconds`` its stages' final
+        checkpoints record (kept over resumes); None when a stage has not finished."""
+        if not all(self.finished(stage) for stage in schedule):
+            return None
+        return sum(float(load_checkpoint(self.final(stage))[CHECKPOINT_KEY].get("train_seconds", 0.0))
+                   for stage in schedule)
+
+    def steps(self, schedule: Sequence[str], planned: dict[str, int]) -> dict[str, dict[str, Optional[int]]]:
+        """Per scheduled stage, the steps ``planned`` and the steps its ``final.ckpt`` reached
+        (None where the stage has not finished; fewer: the stage's time cap stopped it)."""
+        return {str(stage): {"planned": planned[stage],
+                             "reached": int(load_checkpoint(self.final(stage))["global_step"])
+                             if self.finished(stage) else None} for stage in schedule}
 
     def latest_checkpoint(self, schedule: Sequence[str]) -> Optional[Path]:
         """What a stopped run resumes from: the newest of ``last.ckpt``, ``final.ckpt`` and

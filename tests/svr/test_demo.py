@@ -9,7 +9,8 @@ import pytest
 
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
-from svr.demo import main, resume_point, run, run_train_seconds
+from svr.demo import main, run
+from svr.training.run_folder import RunFolder
 
 from ..entry_points import expect_usage_error, run_entry
 
@@ -64,7 +65,7 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
 
     shutil.rmtree(out / "train" / "joint")
     refine_final = out / "train" / "refine" / "checkpoints" / "final.ckpt"
-    assert resume_point(out / "train", ["coarse", "refine", "joint"]) == (False, refine_final)
+    assert RunFolder(out / "train").resume_point(["coarse", "refine", "joint"]) == (False, refine_final)
     coarse_stamp = (out / "train" / "coarse" / "checkpoints" / "final.ckpt").stat().st_mtime_ns
     demo(args)
     assert "resuming the unfinished run" in capsys.readouterr().out
@@ -86,12 +87,12 @@ def test_demo_stopped_by_sigterm_resumes_and_counts_the_whole_run(tmp_path, caps
     assert stopped.value.code == 143
     assert "run the same command again" in capsys.readouterr().err
     run_dir = tmp_path / "rel" / "demo" / "train"  # out from the working directory
-    first_part = run_train_seconds(run_dir, ["coarse"])
+    first_part = RunFolder(run_dir).train_seconds(["coarse"])
     assert first_part > 0 and (run_dir / "refine" / "checkpoints" / "last.ckpt").is_file()
     result = demo([*args, *stop])  # the same command: resumes after refine's step 1
     assert "resuming the unfinished run" in capsys.readouterr().out
     timings = json.loads((tmp_path / "rel" / "demo" / "timings.json").read_text())
-    assert timings["resumed"] and timings["train_seconds"] == pytest.approx(run_train_seconds(run_dir, SCHEDULE))
+    assert timings["resumed"] and timings["train_seconds"] == pytest.approx(RunFolder(run_dir).train_seconds(SCHEDULE))
     assert timings["train_seconds"] > first_part
     steps = {s: {"planned": 2, "reached": 2} for s in SCHEDULE}
     assert timings["steps"] == steps and result["iou"]["steps"] == steps
@@ -99,10 +100,10 @@ def test_demo_stopped_by_sigterm_resumes_and_counts_the_whole_run(tmp_path, caps
 
 
 def test_resume_point_and_eval_only_errors(tmp_path):
-    assert resume_point(tmp_path, ["coarse", "refine"]) == (False, None)
+    assert RunFolder(tmp_path).resume_point(["coarse", "refine"]) == (False, None)
     (tmp_path / "coarse" / "checkpoints").mkdir(parents=True)
     (tmp_path / "coarse" / "checkpoints" / "last.ckpt").write_bytes(b"x")
-    assert resume_point(tmp_path, ["coarse", "refine"]) == (False, tmp_path / "coarse" / "checkpoints" / "last.ckpt")
+    assert RunFolder(tmp_path).resume_point(["coarse", "refine"]) == (False, tmp_path / "coarse" / "checkpoints" / "last.ckpt")
     with pytest.raises(ValueError, match="eval_only=true needs a finished run"):
         demo([f"out={tmp_path / 'nothing'}", "eval_only=true", "quiet=true"])
 
