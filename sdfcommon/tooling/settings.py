@@ -96,8 +96,14 @@ def build_settings(cfg: DictConfig | Mapping[str, Any]) -> Any:
     from every key but ``hydra`` (``build_dataclass``). Interpolations are resolved and ``???``
     (a required value left unset) raises omegaconf's MissingMandatoryValue naming the key."""
     if isinstance(cfg, DictConfig):
-        cfg = OmegaConf.masked_copy(cfg, [k for k in cfg.keys() if k != "hydra"])
-        plain = OmegaConf.to_container(cfg, resolve=True, throw_on_missing=True)
+        # Resolved key by key in place: a copy would lose the config's resolver cache, and a second
+        # ${now:...} could name another second than hydra's run folder did.
+        plain = {}
+        for key in cfg.keys():
+            if key != "hydra":
+                value = cfg[key]  # resolved through the root and its cache; ??? raises, naming the key
+                plain[key] = (OmegaConf.to_container(value, resolve=True, throw_on_missing=True)
+                              if OmegaConf.is_config(value) else value)
     else:
         plain = {k: v for k, v in cfg.items() if k != "hydra"}
     if "_target_" not in plain:

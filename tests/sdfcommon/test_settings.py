@@ -90,3 +90,22 @@ def test_every_commands_yaml_builds_its_settings_and_refuses_an_unknown_key(name
     assert dataclasses.is_dataclass(settings) and build_settings(settings_record(settings)) == settings
     with pytest.raises(ValueError, match="nonsense: unknown setting"):
         build_settings(compose(name, [*overrides, "+nonsense=1"]))
+
+
+@dataclass(frozen=True)
+class Folders:
+    paths: dict
+    out: str
+
+
+def test_a_time_stamp_resolves_as_it_did_for_the_run_folder():
+    """Settings built after hydra resolved the run folder give the same ${now:...}, also inside a
+    node (a copy of the config would resolve it afresh, possibly a second later)."""
+    ticks = iter(range(100))
+    OmegaConf.register_new_resolver("tick", lambda: next(ticks), use_cache=True, replace=True)
+    cfg = OmegaConf.create({"_target_": f"{__name__}.Folders", "paths": {"out": "o/${tick:}"}, "out": "${paths.out}/x",
+                            "hydra": {"run": {"dir": "${paths.out}"}}})
+    run_dir = cfg.hydra.run.dir
+    next(ticks)  # a later resolution would see another value
+    settings = build_settings(cfg)
+    assert run_dir == "o/0" and settings == Folders({"out": "o/0"}, "o/0/x")
