@@ -169,19 +169,14 @@ def train_run_dir(ckpt_path: Any, output_dir: str, fresh: str) -> str:
     return str(slurm.root) if slurm is not None else str(fresh)
 
 
-def train_output_subdir(ckpt_path: Any, run_dir: str) -> Optional[str]:
-    """hydra's record folder for training (``${train_output_subdir:ckpt_path,run_dir}``): none
-    when the run goes on in the folder of the run it resumes (its ``.hydra/`` keeps the record of
-    how it started), ``.hydra`` otherwise."""
+def train_output_subdir(ckpt_path: Any, run_dir: str, output_dir: str) -> Optional[str]:
+    """hydra's record folder for training (``${train_output_subdir:ckpt_path,run_dir,output_dir}``):
+    none when the run goes on in the folder of the run it resumes, named by ``ckpt_path`` or a
+    requeued SLURM job's own (``requeued_run``; its ``.hydra/`` keeps the record of how it started),
+    ``.hydra`` otherwise."""
     folder = Path(str(run_dir)).expanduser().resolve()
-    if _is_set(ckpt_path):
-        run = run_named_by(str(ckpt_path))
-        if run is not None and run.root == folder:
-            return None
-    elif folder.name.startswith("slurm-") and int(os.environ.get("SLURM_RESTART_COUNT") or 0) > 0 \
-            and RunFolder(folder).holds_run():
-        return None
-    return ".hydra"
+    resumed = run_named_by(str(ckpt_path)) if _is_set(ckpt_path) else requeued_run(os.environ, output_dir)
+    return None if resumed is not None and resumed.root.resolve() == folder else ".hydra"
 
 
 OmegaConf.register_new_resolver("train_run_dir", train_run_dir, replace=True)

@@ -24,10 +24,6 @@ class RunFolder:
 
     root: Path
 
-    @classmethod
-    def at(cls, path: Union[str, Path]) -> "RunFolder":
-        return cls(Path(path))
-
     @property
     def config(self) -> Path:
         """The run's resolved config (written when the run starts)."""

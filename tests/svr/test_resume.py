@@ -166,8 +166,8 @@ def test_run_folder_and_latest_checkpoint(tmp_path):
     assert train_run_dir(str(ckpt), "outputs", "outputs/train/new") == str(run.resolve())
     assert train_run_dir(str(run), "outputs", "outputs/train/new") == str(run.resolve())
     assert train_run_dir(None, "outputs", "outputs/train/new") == "outputs/train/new"
-    assert train_output_subdir(str(ckpt), str(run)) is None
-    assert train_output_subdir(str(ckpt), str(tmp_path / "elsewhere")) == ".hydra"  # hydra.run.dir given: a new folder
+    assert train_output_subdir(str(ckpt), str(run), "outputs") is None
+    assert train_output_subdir(str(ckpt), str(tmp_path / "elsewhere"), "outputs") == ".hydra"  # hydra.run.dir given: a new folder
     cfg = compose_train([f"ckpt_path={ckpt}"], hydra=True)
     assert cfg.hydra.run.dir == str(run.resolve()) and cfg.hydra.output_subdir is None
     cfg = compose_train([f"ckpt_path={ckpt}", f"hydra.run.dir={tmp_path / 'elsewhere'}"], hydra=True)
@@ -187,12 +187,12 @@ def test_slurm_batch_jobs_get_a_folder_their_requeue_resumes(tmp_path, monkeypat
     for key, value in requeued.items():
         monkeypatch.setenv(key, value)
     assert train_run_dir(None, "outputs", "outputs/train/new") == "outputs/train/slurm-77"
-    assert train_output_subdir(None, "outputs/train/slurm-77") == ".hydra"
+    assert train_output_subdir(None, "outputs/train/slurm-77", "outputs") == ".hydra"
     run = tmp_path / "outputs" / "train" / "slurm-77"
     (run / "coarse").mkdir(parents=True)
     (run / "config.yaml").write_text("seed: 0\n")
     assert requeued_run(requeued, "outputs") == RunFolder(Path("outputs/train/slurm-77"))
-    assert train_output_subdir(None, "outputs/train/slurm-77") is None  # the requeued job goes on in place
+    assert train_output_subdir(None, "outputs/train/slurm-77", "outputs") is None  # the requeued job goes on in place
     assert requeued_run(env, "outputs") is None  # not requeued: no resume
     hpc = run / "coarse" / "hpc_ckpt_1.ckpt"  # Lightning's SIGUSR1 checkpoint
     hpc.write_bytes(b"x")
