@@ -14,7 +14,7 @@ _EXPORTS = {
     "SVRBatch": "types", "ShadingModel": "types", "collate_batch": "types",
     "NMRDataset": "nmr", "NMR_CATEGORIES": "nmr", "prepare_nmr": "nmr",
     "ALL_CATEGORIES": "procedural.categories", "NMR_PROCEDURAL_CATEGORIES": "procedural.categories",
-    "ProceduralSettings": "procedural.generator", "DEFAULT_SHADING": "procedural.generator",
+    "ProceduralSettings": "procedural.generator",
     "generate_procedural_dataset": "procedural.generator", "ensure_procedural_dataset": "procedural.generator",
     "make_shape": "procedural.generator", "render_shape": "procedural.generator",
     "voxelize_shape": "procedural.generator",

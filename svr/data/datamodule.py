@@ -35,7 +35,7 @@ from torch.utils.data.distributed import DistributedSampler
 from sdfcommon.tooling.checks import check_int
 from svr.distributed import RankInfo, shard_indices
 from svr.data.nmr import NUM_VIEWS, SPLITS, NMRDataset, check_view_ids, prepare_nmr, resolve_categories
-from svr.data.procedural.generator import (DEFAULT_SHADING, ProceduralSettings, default_workers, ensure_procedural_dataset,
+from svr.data.procedural.generator import (ProceduralSettings, default_workers, ensure_procedural_dataset,
                          load_shading, procedural_dataset_dir)
 from svr.data.types import ShadingModel, collate_batch
 
@@ -459,7 +459,7 @@ class ProceduralDataModule(NMRDataModule):
         self.root = procedural_dataset_dir(self.cache_dir, self.settings)
         self.categories = self.settings.category_pairs()
         self._category_keys = [c for c, _ in self.categories]
-        self.shading = DEFAULT_SHADING
+        self.shading: Optional[ShadingModel] = None  # per-part colours: no single known albedo, as NMR
         self.progress = progress
 
     def prepare_data(self) -> None:

@@ -14,7 +14,8 @@ import svr.data.procedural.generator as procedural
 from svr.data.procedural.csg import (BOX, CAPSULE, CONE, CYLINDER, SPHERE, TORUS, CSGBuilder, CSGShape, rotation,
                           trace_rays)
 from svr.data.nmr import NMRDataset, nmr_file
-from svr.data.procedural.generator import (ALL_CATEGORIES, DEFAULT_SHADING, ProceduralSettings, load_shading, make_shape,
+from svr.data.procedural.appearance import NMR_LIGHTING
+from svr.data.procedural.generator import (ALL_CATEGORIES, ProceduralSettings, load_shading, make_shape,
                                  render_shape, voxelize_shape)
 from sdfcommon.numerics.meshing import sdf_to_mesh
 from svr.evaluation.voxels import voxels_to_sdf
@@ -199,21 +200,45 @@ def test_cone_certificate_never_skips_a_neighbouring_ray():
     assert len(clear) > 50000 and not hits.hit.any()
 
 
-def test_shading_matches_the_renderer_with_the_recorded_shading_model():
-    """Training re-renders the data with ShadingModel.scene(): the renderer's image of a fine SDF
-    grid of the same shape equals the dataset's RGB inside the shape (to grid error)."""
+def test_shading_matches_the_renderer_under_the_nmr_light():
+    """One colour on every part: the renderer's Lambert image of a fine SDF grid of the same shape,
+    lit as NMR_LIGHTING, equals the dataset's RGB inside the shape (to grid error)."""
     shape = make_shape("sofa", [4])
-    img = render_shape(shape, supersample=2)
+    colour = (0.8, 0.3, 0.5)
+    img = render_shape(shape, np.tile(colour, (len(shape.parts), 1)), supersample=2)
     grid = renderer.SDFGrid.from_function(shape.sdf, 96, -0.56, 0.56, dtype=torch.float64)
     views = [0, 7, 15]
-    out = renderer.render(grid, renderer.Cameras.nmr(views, dtype=torch.float64),
-                          DEFAULT_SHADING.scene(("silhouette", "shading")))
+    scene = renderer.Scene(effects=("silhouette", "shading"),
+                           lights=(renderer.DirectionalLight(NMR_LIGHTING.direction, NMR_LIGHTING.lamp),),
+                           ambient=NMR_LIGHTING.environment, albedo=colour)
+    out = renderer.render(grid, renderer.Cameras.nmr(views, dtype=torch.float64), scene)
     full = img[views, 3] == 255
     rgb = out.image.numpy().transpose(0, 3, 1, 2)
     both = full & out.hit.numpy()
-    diff = np.abs(rgb * 255 - img[views, :3])[np.broadcast_to(both[:, None], rgb.shape)]
+    diff = np.abs(np.clip(rgb, 0, 1) * 255 - img[views, :3])[np.broadcast_to(both[:, None], rgb.shape)]
     assert both.sum() > 1000
     assert np.median(diff) < 2.0 and np.mean(diff) < 6.0
+
+
+def test_each_part_shows_its_own_colour():
+    """A red body with a blue knob on top and a green recess cut into its front: each shows in its
+    colour where it is seen, and nowhere else."""
+    b = CSGBuilder()
+    b.part("body").box((0, 0, 0), (0.4, 0.2, 0.3))
+    b.part("recess").box((0, 0, -0.3), (0.2, 0.1, 0.05), op="subtract")
+    b.part("knob").sphere((0, 0.3, 0), 0.12)
+    shape = b.shape().normalized()
+    assert shape.parts == ("body", "recess", "knob")
+    colours = np.array([(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)])
+    img = render_shape(shape, colours, supersample=1)[0].astype(int)  # view 0 looks at the front
+    solid = img[3] == 255
+    red = solid & (img[0] > 40) & (img[1] == 0) & (img[2] == 0)
+    green = solid & (img[1] > 40) & (img[0] == 0) & (img[2] == 0)
+    blue = solid & (img[2] > 40) & (img[0] == 0) & (img[1] == 0)
+    assert red.sum() > 300 and green.sum() > 40 and blue.sum() > 40
+    assert (red | green | blue)[solid].mean() > 0.97
+    rows = lambda m: np.nonzero(m.any(1))[0]
+    assert rows(blue).mean() < rows(green).mean()  # the knob is above the recess (row 0 is the top)
 
 
 def _silhouette_iou(voxels: np.ndarray, alpha: np.ndarray, views: list[int]) -> float:
@@ -288,7 +313,8 @@ def test_dataset_files_have_the_exact_nmr_layout(tiny_procedural):
     _, root, settings = tiny_procedural
     meta = json.loads((root / "metadata.json").read_text())
     assert meta["categories"] == [[c, n] for c, n in settings.category_pairs()]
-    assert load_shading(root) == DEFAULT_SHADING
+    assert load_shading(root) is None  # no single albedo: training sees it as NMR data
+    assert meta["lighting"]["environment"] == NMR_LIGHTING.environment
     assert dict((n, c) for c, n in settings.category_pairs())["chair"] == "03001627"  # ShapeNet's synset id
     assert dict((n, c) for c, n in settings.category_pairs())["mug"] == "90000006"    # an extra: our own id
     for cid, _ in settings.category_pairs():

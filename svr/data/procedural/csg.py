@@ -41,8 +41,9 @@ SUBTRACT = 1
 INTERSECT = 2
 
 # Row layout: kind, op, M (3x3 world->local rotation, row-major, 2..10), centre (11..13), params (14..18),
-# bounding radius (19: the primitive lies within this distance of its centre; filled in by CSGShape).
-ROW = 20
+# bounding radius (19: the primitive lies within this distance of its centre; filled in by CSGShape),
+# part (20: index into CSGShape.parts, the named part the primitive's surface belongs to).
+ROW = 21
 _M = slice(2, 11)
 _C = slice(11, 14)
 _P = slice(14, 19)
@@ -53,8 +54,10 @@ class CSGShape:
     """A CSG program with its placement in the world.
 
     Attributes:
-        program: (P, 20) float64 rows (see the module constants).
+        program: (P, 21) float64 rows (see the module constants).
         scale, offset: world placement, ``sdf_world(p) = scale * sdf_program(p / scale + offset)``.
+        parts: the part names (e.g. "legs", "seat") the program's column 20 indexes: the surface
+            a row makes belongs to its part (``part_at``), which is how objects get part colours.
         bounds: ((3,), (3,)) world box that contains the shape (tight after ``normalized()``,
             otherwise a conservative union of the primitives' boxes).
     """
@@ -63,6 +66,7 @@ class CSGShape:
     scale: float = 1.0
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     bounds: Optional[tuple[np.ndarray, np.ndarray]] = field(default=None)
+    parts: tuple[str, ...] = ("body",)
 
     def __post_init__(self) -> None:
         prog = np.ascontiguousarray(np.asarray(self.program, dtype=np.float64))
@@ -71,6 +75,10 @@ class CSGShape:
             raise ValueError("program contains NaN or Inf")
         if not self.scale > 0:  # inf is allowed: a shape may be any size
             raise ValueError(f"scale must be > 0, got {self.scale!r}")
+        object.__setattr__(self, "parts", tuple(str(p) for p in self.parts))
+        if not self.parts or (prog[:, 20] < 0).any() or (prog[:, 20] >= len(self.parts)).any() \
+                or (prog[:, 20] != np.round(prog[:, 20])).any():
+            raise ValueError(f"program column 20 must index parts {list(self.parts)}")
         prog = prog.copy()
         for row in prog:
             row[19] = float(np.linalg.norm(_local_half_extents(int(row[0]), row[_P])))
@@ -154,7 +162,8 @@ class CSGShape:
         # world' = (world - centre) / size  =>  sdf'(p) = sdf(p * size + centre) / size
         new_scale = self.scale / size
         new_offset = np.asarray(self.offset) + centre / self.scale
-        return CSGShape(self.program, new_scale, tuple(new_offset), ((lo - centre) / size, (hi - centre) / size))
+        return CSGShape(self.program, new_scale, tuple(new_offset), ((lo - centre) / size, (hi - centre) / size),
+                        self.parts)
 
     def measure_bounds(self, samples: int = 32) -> tuple[np.ndarray, np.ndarray]:
         """The shape's bounding box (world), measured on its surface (see ``normalized``)."""
@@ -293,11 +302,13 @@ def _primitive(kind, x, y, z, a, b, c, d):
 
 
 @numba.njit(cache=True)
-def _sdf_point(prog, scale, off, wx, wy, wz):
+def _sdf_source(prog, scale, off, wx, wy, wz):
+    """(signed distance, the row whose surface is nearest in the CSG sense: the last row that set d)."""
     px = wx / scale + off[0]
     py = wy / scale + off[1]
     pz = wz / scale + off[2]
     d = 0.0
+    src = 0
     for n in range(prog.shape[0]):
         r = prog[n]
         dx = px - r[11]
@@ -313,21 +324,27 @@ def _sdf_point(prog, scale, off, wx, wy, wz):
         qy = r[5] * dx + r[6] * dy + r[7] * dz
         qz = r[8] * dx + r[9] * dy + r[10] * dz
         e = _primitive(int(r[0]), qx, qy, qz, r[14], r[15], r[16], r[17])
-        if n == 0:
-            d = e
-        elif op == UNION:
-            d = min(d, e)
-        elif op == SUBTRACT:
-            d = max(d, -e)
-        else:
-            d = max(d, e)
-    return d * scale
+        if n == 0 or (op == UNION and e < d) or (op == SUBTRACT and -e > d) or (op == INTERSECT and e > d):
+            d = -e if (n > 0 and op == SUBTRACT) else e
+            src = n
+    return d * scale, src
+
+
+@numba.njit(cache=True)
+def _sdf_point(prog, scale, off, wx, wy, wz):
+    return _sdf_source(prog, scale, off, wx, wy, wz)[0]
 
 
 @numba.njit(cache=True, parallel=True)
 def _sdf_many(prog, scale, off, pts, out):
     for n in numba.prange(pts.shape[0]):
         out[n] = _sdf_point(prog, scale, off, pts[n, 0], pts[n, 1], pts[n, 2])
+
+
+@numba.njit(cache=True, parallel=True)
+def _parts_many(prog, scale, off, pts, out):
+    for n in numba.prange(pts.shape[0]):
+        out[n] = int(prog[_sdf_source(prog, scale, off, pts[n, 0], pts[n, 1], pts[n, 2])[1], 20])
 
 
 @numba.njit(cache=True, parallel=True)
@@ -406,6 +423,16 @@ def surface_normals(shape: CSGShape, points: np.ndarray, eps: float = 1e-5) -> n
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     out = np.empty_like(pts)
     _normals_many(shape.program, shape.scale, np.asarray(shape.offset), pts, eps, out)
+    return out
+
+
+def part_at(shape: CSGShape, points: np.ndarray) -> np.ndarray:
+    """The part (index into ``shape.parts``) whose surface is nearest each world point (K, 3) -> (K,)
+    int64: of the row that last set the CSG value there, so a recess cut into a body has the part of
+    the cut, and a hidden primitive never shows."""
+    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+    out = np.empty(len(pts), dtype=np.int64)
+    _parts_many(shape.program, shape.scale, np.asarray(shape.offset), pts, out)
     return out
 
 
@@ -502,6 +529,16 @@ class CSGBuilder:
 
     def __init__(self) -> None:
         self.rows: list[np.ndarray] = []
+        self.parts: list[str] = ["body"]
+        self._part = 0
+
+    def part(self, name: str) -> "CSGBuilder":
+        """Rows added from now on belong to the part ``name`` (new names are appended to the list;
+        before any call, "body")."""
+        if name not in self.parts:
+            self.parts.append(str(name))
+        self._part = self.parts.index(name)
+        return self
 
     def _add(self, kind: int, centre, params, rot=None, op: str = "union") -> "CSGBuilder":
         if op not in self._OPS:
@@ -513,6 +550,7 @@ class CSGBuilder:
         row[_M] = r.T.reshape(-1)  # world -> local
         row[_C] = np.asarray(centre, dtype=np.float64)
         row[14:14 + len(params)] = params
+        row[20] = self._part
         self.rows.append(row)
         return self
 
@@ -551,4 +589,7 @@ class CSGBuilder:
     def shape(self) -> CSGShape:
         if not self.rows:
             raise ValueError("the program is empty")
-        return CSGShape(np.stack(self.rows))
+        used = sorted({int(r[20]) for r in self.rows})  # drop names no row kept, renumbering
+        prog = np.stack(self.rows)
+        prog[:, 20] = np.searchsorted(used, prog[:, 20])
+        return CSGShape(prog, parts=tuple(self.parts[k] for k in used))

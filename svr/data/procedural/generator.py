@@ -29,32 +29,22 @@ from tqdm.auto import tqdm
 
 import renderer
 from renderer import NMR_NUM_VIEWS as NUM_VIEWS
-from renderer import shade_lambert
-from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.checks import check_int, check_shape
 from sdfcommon.tooling.outputs import remove_stale_temporaries, write_json, write_npz
 from sdfcommon.tooling.processes import process_pool
 from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
 from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxelize_sdf_protocol
 from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
                          make_shape, procedural_category, style_of)
-from svr.data.procedural.csg import CSGShape, surface_normals, trace_rays
+from svr.data.procedural.appearance import NEUTRAL_COLOUR, NMR_LIGHTING, Lighting, colour_rng, draw_colours
+from svr.data.procedural.csg import CSGShape, part_at, surface_normals, trace_rays
 from svr.data.types import ShadingModel
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 
 IMAGE_SIZE = 64
 SPLITS = ("train", "val", "test")
-
-# The fixed light of the procedural renders (world frame, y up; view 0 looks from -z).
-DEFAULT_SHADING = ShadingModel(
-    light_direction=(0.45, 1.0, -0.6),
-    light_intensity=0.65,
-    ambient=0.35,
-    albedo=(0.85, 0.62, 0.42),
-    background=(1.0, 1.0, 1.0),
-)
-
 
 def object_seed(seed: int, category_id: str, split: str, index: int) -> list[int]:
     """The seed of one object: independent of how many objects and which other categories are made."""
@@ -97,8 +87,9 @@ def _interior_pixels(hit, t, normals, depth_k, cos_min):
     return out
 
 
-def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, supersample: int = 3,
-                 image_size: int = IMAGE_SIZE, num_views: int = NUM_VIEWS, adaptive: bool = True) -> np.ndarray:
+def render_shape(shape: CSGShape, colours: Optional[np.ndarray] = None, lighting: Lighting = NMR_LIGHTING,
+                 supersample: int = 3, image_size: int = IMAGE_SIZE, num_views: int = NUM_VIEWS,
+                 adaptive: bool = True) -> np.ndarray:
     """The NMR views of an analytic shape, anti-aliased.
 
     Adaptive supersampling: every pixel's centre ray is traced first. A pixel whose centre ray
@@ -110,13 +101,19 @@ def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, super
 
     Args:
         shape: a normalised CSGShape (world frame, y up).
-        shading: the light, material and background (``shading.scene()`` shades the hits).
+        colours: (P, 3) albedo in [0, 1] per part of ``shape.parts`` (``svr.data.procedural.appearance
+            .draw_colours``); None: every part ``NEUTRAL_COLOUR``.
+        lighting: the light (``NMR_LIGHTING``: NMR's recipe); the background is white.
         supersample: S, rays per pixel side.
         adaptive: False supersamples every pixel (the reference the adaptive rule is tested against).
     Returns:
         (V, 4, H, W) uint8 RGBA: RGB composited on the background, alpha = coverage.
     """
     s = check_int(supersample, "supersample", minimum=1)
+    if colours is None:
+        colours = np.tile(NEUTRAL_COLOUR, (len(shape.parts), 1))
+    colours = np.asarray(colours, dtype=np.float64)
+    check_shape(colours, "colours", f"{len(shape.parts)}, 3")
     eyes, dirs = _nmr_rays(image_size, num_views)
     _, sub_dirs = _nmr_rays(image_size * s, num_views)
     v, h, w = dirs.shape[:3]
@@ -162,13 +159,9 @@ def render_shape(shape: CSGShape, shading: ShadingModel = DEFAULT_SHADING, super
     n_int = normals1[use1]
     p_sub = eyes[view2[hit2]] + t_hit2[hit2, None] * d2[hit2]
     n_sub = surface_normals(shape, p_sub) if len(p_sub) else np.zeros((0, 3))
-    scene = shading.scene(("shading",))
-    # float32, as training renders: the 8-bit result does not see the difference
-    pts = torch.from_numpy(np.concatenate([p_int, p_sub]).astype(np.float32))
-    eye_all = torch.from_numpy(eyes[np.concatenate([view_of[use1], view2[hit2]])].astype(np.float32))
-    nrm = torch.from_numpy(np.concatenate([n_int, n_sub]).astype(np.float32))
-    rgb = shade_lambert(nrm, pts, eye_all, scene).double().numpy()
-    bg = np.asarray(shading.background, dtype=np.float64)
+    pts = np.concatenate([p_int, p_sub])
+    rgb = lighting.shade(np.concatenate([n_int, n_sub]), colours[part_at(shape, pts)])
+    bg = np.ones(3)
 
     out = np.zeros((n_pix, 4))
     out[:, :3] = bg
@@ -336,14 +329,15 @@ class _Chunk:
         return f"{self.category_id}_{self.split}_{self.start:06d}.done"
 
 
-def _make_chunk(chunk: _Chunk, settings: ProceduralSettings, shading: ShadingModel) -> tuple[np.ndarray, np.ndarray]:
+def _make_chunk(chunk: _Chunk, settings: ProceduralSettings) -> tuple[np.ndarray, np.ndarray]:
     """Renders and voxelises one chunk: ((n, 24, 4, 64, 64) uint8, (n, 32, 32, 32) bool)."""
     n = chunk.stop - chunk.start
     images = np.zeros((n, *IMAGE_SHAPE), dtype=np.uint8)
     voxels = np.zeros((n, *VOXEL_SHAPE), dtype=bool)
     for k, i in enumerate(range(chunk.start, chunk.stop)):
-        shape = make_shape(chunk.name, object_seed(settings.seed, chunk.category_id, chunk.split, i))
-        images[k] = render_shape(shape, shading, settings.supersample)
+        seed = object_seed(settings.seed, chunk.category_id, chunk.split, i)
+        shape = make_shape(chunk.name, seed)
+        images[k] = render_shape(shape, draw_colours(colour_rng(seed), shape.parts), NMR_LIGHTING, settings.supersample)
         voxels[k] = voxelize_shape(shape, rule=settings.voxel_rule)
     return images, voxels
 
@@ -371,23 +365,23 @@ def _open_arrays(folder: Path, settings: ProceduralSettings) -> dict[tuple[str, 
 
 
 def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: ProceduralSettings = ProceduralSettings(),
-                                shading: ShadingModel = DEFAULT_SHADING, progress: bool = True,
-                                workers: int = 0) -> Path:
+                                progress: bool = True, workers: int = 0) -> Path:
     """Renders and voxelises every object and writes the NMR layout into ``out_dir``.
 
     Each object gets 24 RGBA views, uint8 (24, 4, 64, 64), from the NMR cameras
     (``renderer.Cameras.nmr``: elevation 30, distance 2.732, field of view 30), sphere-traced on the
     *analytic* SDF and anti-aliased by supersampling (S x S rays per pixel, S = 3 by default, where
-    NMR's own renderer used 2 x 2; ``render_shape`` gives the adaptive rule), shaded with the fixed
-    light of ``DEFAULT_SHADING`` through ``renderer.shade_lambert`` on a white background, so that
-    training can re-render the same shading with ``ShadingModel.scene()``. It also gets solid
+    NMR's own renderer used 2 x 2; ``render_shape`` gives the adaptive rule), its parts in the
+    colours of ``svr.data.procedural.appearance.draw_colours`` (drawn from the object's seed) under
+    NMR's light (``NMR_LIGHTING``), on a white background: like NMR ShapeNet, no single albedo or
+    light is known to training. It also gets solid
     voxels, bool (32, 32, 32), in the NMR voxel frame: by default (``voxel_rule="protocol"``) the
     benchmark's own voxelisation of a fine marching-cubes mesh of the analytic SDF
     (``voxelize_shape``), so that the exact shape scores about 1 under the benchmark protocol; with
     ``voxel_rule="centre"``, ``vox[i, j, k]`` is occupied iff the analytic SDF is negative at the
     world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``. The folder holds
     ``{cid}_{split}_images.npz`` and ``{cid}_{split}_voxels.npz`` (key ``arr_0``, as NMR ShapeNet), a
-    ``metadata.json`` (categories, settings, shading model), and the memory-mapped ``.npy`` copies
+    ``metadata.json`` (categories, settings, lighting), and the memory-mapped ``.npy`` copies
     that ``svr.data.nmr.prepare_nmr`` makes of real NMR data.
 
     The work goes into ``.<name>.partial`` beside ``out_dir`` in chunks of ``CHUNK_OBJECTS``
@@ -420,7 +414,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
             "categories": [[cid, name] for cid, name in settings.category_pairs()],
             "sizes": settings.sizes(),
             "settings": settings.to_json(),
-            "shading": dataclasses.asdict(shading),
+            "lighting": dataclasses.asdict(NMR_LIGHTING),
         }
         plan = partial / "plan.json"
         done_dir = partial / "done"
@@ -456,7 +450,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
 
         if workers == 0 or len(todo) <= 1:
             for chunk in todo:
-                store(chunk, _make_chunk(chunk, settings, shading))
+                store(chunk, _make_chunk(chunk, settings))
         else:
             with process_pool(workers, initializer=_worker_init) as pool:  # workers die with this process
                 queue = list(reversed(todo))
@@ -465,7 +459,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
                     while queue or running:
                         while queue and len(running) < 2 * workers:
                             chunk = queue.pop()
-                            running[pool.submit(_make_chunk, chunk, settings, shading)] = chunk
+                            running[pool.submit(_make_chunk, chunk, settings)] = chunk
                         finished, _ = wait(running, return_when=FIRST_COMPLETED)
                         for job in finished:
                             store(running.pop(job), job.result())
@@ -529,7 +523,7 @@ def load_shading(root: Union[str, os.PathLike]) -> Optional[ShadingModel]:
 
 
 __all__ = [
-    "DEFAULT_SHADING", "GENERATOR_VERSION", "ALL_CATEGORIES", "NMR_PROCEDURAL_CATEGORIES", "EXTRA_CATEGORIES",
+    "GENERATOR_VERSION", "ALL_CATEGORIES", "NMR_PROCEDURAL_CATEGORIES", "EXTRA_CATEGORIES",
     "ProceduralCategory", "ProceduralSettings", "make_shape", "style_of", "object_seed", "procedural_category",
     "render_shape", "voxelize_shape", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
     "procedural_dataset_dir", "load_shading", "read_settings", "is_procedural_dataset", "dataset_shape",
