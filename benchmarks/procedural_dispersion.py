@@ -2,7 +2,7 @@
 shapes are, run as ``python -m benchmarks.procedural_dispersion [--preset demo|bench]``. Per category
 and on the mean over categories, on the test split: the lookup ceiling (for each test object, the
 voxel IoU of its most similar training object of any category: the best any lookup can do),
-silhouette retrieval, the category mean shape and the ground-truth oracle (``svr.evaluation
+silhouette retrieval, the category mean shape, the mean shape and the ground-truth oracle (``svr.evaluation
 .baselines``, scored over all 24 views as a model is), and diversity (the mean pairwise voxel IoU
 of the category's training objects; lower is more varied), with a 95% bootstrap interval over test
 objects for the lookup ceiling and retrieval. It writes docs/procedural_dispersion_<preset>.md and
@@ -37,8 +37,8 @@ GRID_RESOLUTION = 64
 SHEET_OBJECTS = 12     # objects per category on the contact sheet
 SHEET_VIEW = 3         # azimuth -45 degrees: front and side at once
 DIVERSITY_SAMPLE = 200  # training objects per category in the pairwise diversity figure
-COLUMNS = ("lookup", "retrieval", "category_mean_shape", "oracle", "diversity")
-COLUMN_LABELS = {"lookup": "lookup ceiling", "retrieval": LABELS["retrieval"],
+COLUMNS = ("lookup", "retrieval", "category_mean_shape", "mean_shape", "oracle", "diversity")
+COLUMN_LABELS = {"lookup": "lookup ceiling", "retrieval": LABELS["retrieval"], "mean_shape": LABELS["mean_shape"],
                  "category_mean_shape": LABELS["category_mean_shape"], "oracle": LABELS["oracle"],
                  "diversity": "diversity (mean pairwise IoU)"}
 
@@ -46,8 +46,8 @@ COLUMN_LABELS = {"lookup": "lookup ceiling", "retrieval": LABELS["retrieval"],
 def iou_matrix(a: np.ndarray, b: np.ndarray, chunk: int = 512) -> np.ndarray:
     """Voxel IoU of every pair: (Q, ...) bool and (N, ...) bool -> (Q, N) float64 (1 where both are
     empty)."""
-    fa = torch.from_numpy(np.asarray(a, dtype=bool).reshape(len(a), -1)).float()
-    fb = torch.from_numpy(np.asarray(b, dtype=bool).reshape(len(b), -1)).float()
+    fa = torch.from_numpy(np.ascontiguousarray(a, dtype=bool).reshape(len(a), -1)).float()
+    fb = torch.from_numpy(np.ascontiguousarray(b, dtype=bool).reshape(len(b), -1)).float()
     if fa.shape[1] != fb.shape[1]:
         raise ValueError(f"a and b must hold grids of one size, got {fa.shape[1]} and {fb.shape[1]} cells")
     nb = fb.sum(1)
@@ -116,7 +116,7 @@ def dispersion(preset: str = "bench", cache_dir: Optional[Path] = None, override
     result = EvaluationResult(split="test", dataset=str(dm.root), categories=tuple(test.categories),
                               is_nmr_shapenet=False, checkpoint=None, stage="-", output="-", category=cat,
                               object_index=obj, view=view, iou=np.zeros(len(cat)))
-    scores = score_baselines(("retrieval", "category_mean_shape"), result, test, train, HALF_SIDE, GRID_RESOLUTION,
+    scores = score_baselines(("retrieval", "category_mean_shape", "mean_shape"), result, test, train, HALF_SIDE, GRID_RESOLUTION,
                              progress=progress)
     sub = np.repeat(keep, 24)
     sub_result = EvaluationResult(split="test", dataset=str(dm.root), categories=tuple(test.categories),
@@ -134,7 +134,8 @@ def dispersion(preset: str = "bench", cache_dir: Optional[Path] = None, override
         retr = scores["retrieval"][cat == c].reshape(-1, 24).mean(1)  # per object, over its views
         row["retrieval"] = float(retr.mean())
         row["retrieval_interval"] = bootstrap_interval(retr)
-        row["category_mean_shape"] = float(scores["category_mean_shape"][cat == c].mean())
+        for key in ("category_mean_shape", "mean_shape"):
+            row[key] = float(scores[key][cat == c].mean())
         row["oracle"] = float(oracle["oracle"][cat[sub] == c].mean()) if "oracle" in oracle else float("nan")
         pool = np.flatnonzero(train_cat == c)
         pick = rng.choice(pool, size=min(DIVERSITY_SAMPLE, len(pool)), replace=False)

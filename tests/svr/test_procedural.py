@@ -18,7 +18,7 @@ from svr.data.procedural.appearance import NMR_LIGHTING
 from svr.data.procedural.generator import (ALL_CATEGORIES, ProceduralSettings, load_shading, make_shape,
                                  render_shape, voxelize_shape)
 from sdfcommon.numerics.meshing import sdf_to_mesh
-from svr.evaluation.voxels import voxels_to_sdf
+from svr.evaluation.voxels import voxelize_sdf_protocol, voxels_to_sdf
 
 from .conftest import asymmetric_shape
 
@@ -304,6 +304,22 @@ def test_protocol_voxel_rule_makes_the_benchmark_protocol_exact():
     assert iou_protocol(grid, prot[None], -0.6, 0.6).item() > 0.97
     with pytest.raises(ValueError, match="rule must be one of"):
         voxelize_shape(shape, rule="surface")
+
+
+def test_sampling_near_the_surface_gives_the_full_grids_mesh_and_voxels():
+    """Blocks far from the surface take their centre's value: every sign is right, every value an
+    edge crossing the surface reads is exact, so the voxels are those of the full grid."""
+    half = 0.5 + 2.0 / 31
+    axis = np.linspace(-half, half, 96)
+    full_points = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1)
+    for name, seed in (("chair", [1]), ("lamp", [2]), ("car", [3])):
+        shape = make_shape(name, seed)
+        full = shape.sdf_numpy(full_points)
+        banded = procedural.sample_near_surface(shape, axis)
+        assert np.array_equal(np.sign(full), np.sign(banded))
+        near = np.abs(full) < axis[1] - axis[0]  # the ends of every edge the surface crosses
+        assert np.array_equal(full[near], banded[near]) and not np.array_equal(full, banded)
+        assert np.array_equal(voxelize_sdf_protocol(full, -half, half), voxelize_shape(shape, rule="protocol"))
 
 
 # ------------------------------------------------------------------------------------ files

@@ -175,6 +175,33 @@ def render_shape(shape: CSGShape, colours: Optional[np.ndarray] = None, lighting
     return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
 
 
+def sample_near_surface(shape: CSGShape, axis: np.ndarray, block: int = 4) -> np.ndarray:
+    """The SDF on the grid ``axis``^3 (ij order), exact wherever marching cubes reads it.
+
+    The grid is cut into blocks of ``block``^3 points and the SDF sampled at each block's centre
+    first. A block whose centre value exceeds, in magnitude, the distance to its farthest point plus
+    one grid step lies entirely on one side of the surface at more than a step from it (the SDF is
+    1-Lipschitz), so its points take the centre's value: right in sign, and never the end of an edge
+    that the surface crosses. Every other block is sampled point by point. The marching-cubes mesh
+    is then the one of the full grid, at a fraction of the samples (about a quarter for the
+    procedural shapes at 96^3).
+    """
+    axis = np.asarray(axis, dtype=np.float64)
+    n = len(axis)
+    if n % block or n < 2 * block:
+        return shape.sdf_numpy(np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1))
+    step = (axis[-1] - axis[0]) / (n - 1)
+    centres = axis[::block] + (block - 1) / 2 * step
+    coarse = shape.sdf_numpy(np.stack(np.meshgrid(centres, centres, centres, indexing="ij"), -1))
+    reach = math.sqrt(3.0) * (block - 1) / 2 * step + 1.01 * step
+    values = coarse.repeat(block, 0).repeat(block, 1).repeat(block, 2)
+    near = np.argwhere(np.abs(coarse) <= reach)
+    offsets = np.stack(np.meshgrid(*[np.arange(block)] * 3, indexing="ij"), -1).reshape(-1, 3)
+    idx = (near[:, None, :] * block + offsets[None]).reshape(-1, 3)
+    values[idx[:, 0], idx[:, 1], idx[:, 2]] = shape.sdf_numpy(axis[idx])
+    return values
+
+
 VOXEL_RULES = ("centre", "protocol")
 
 
@@ -196,8 +223,7 @@ def voxelize_shape(shape: CSGShape, resolution: int = NMR_VOXEL_RESOLUTION, rule
         return shape.sdf_numpy(pts) < 0.0
     if rule == "protocol":
         half = 0.5 + 2.0 / (resolution - 1)
-        axis = np.linspace(-half, half, mesh_resolution)
-        values = shape.sdf_numpy(np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1))
+        values = sample_near_surface(shape, np.linspace(-half, half, mesh_resolution))
         return voxelize_sdf_protocol(values, -half, half, resolution=resolution)
     raise ValueError(f"rule must be one of {VOXEL_RULES}, got {rule!r}")
 
@@ -525,7 +551,7 @@ def load_shading(root: Union[str, os.PathLike]) -> Optional[ShadingModel]:
 __all__ = [
     "GENERATOR_VERSION", "ALL_CATEGORIES", "NMR_PROCEDURAL_CATEGORIES", "EXTRA_CATEGORIES",
     "ProceduralCategory", "ProceduralSettings", "make_shape", "style_of", "object_seed", "procedural_category",
-    "render_shape", "voxelize_shape", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
+    "render_shape", "voxelize_shape", "sample_near_surface", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
     "procedural_dataset_dir", "load_shading", "read_settings", "is_procedural_dataset", "dataset_shape",
     "default_workers",
 ]
