@@ -302,6 +302,18 @@ def _primitive(kind, x, y, z, a, b, c, d):
 
 
 @numba.njit(cache=True)
+def _row_value(r, px, py, pz):
+    """The primitive of row ``r`` at a program-frame point (its own exact SDF)."""
+    dx = px - r[11]
+    dy = py - r[12]
+    dz = pz - r[13]
+    qx = r[2] * dx + r[3] * dy + r[4] * dz
+    qy = r[5] * dx + r[6] * dy + r[7] * dz
+    qz = r[8] * dx + r[9] * dy + r[10] * dz
+    return _primitive(int(r[0]), qx, qy, qz, r[14], r[15], r[16], r[17])
+
+
+@numba.njit(cache=True)
 def _sdf_source(prog, scale, off, wx, wy, wz):
     """(signed distance, the row whose surface is nearest in the CSG sense: the last row that set d)."""
     px = wx / scale + off[0]
@@ -348,17 +360,23 @@ def _parts_many(prog, scale, off, pts, out):
 
 
 @numba.njit(cache=True, parallel=True)
-def _normals_many(prog, scale, off, pts, eps, out):
+def _surface_many(prog, scale, off, pts, eps, out, out_part):
     for n in numba.prange(pts.shape[0]):
-        x, y, z = pts[n, 0], pts[n, 1], pts[n, 2]
-        # Four samples at the corners of a tetrahedron: a central-difference gradient (O(eps^2)).
-        a = _sdf_point(prog, scale, off, x + eps, y - eps, z - eps)
-        b = _sdf_point(prog, scale, off, x - eps, y - eps, z + eps)
-        c = _sdf_point(prog, scale, off, x - eps, y + eps, z - eps)
-        e = _sdf_point(prog, scale, off, x + eps, y + eps, z + eps)
-        gx = a - b - c + e
-        gy = -a - b + c + e
-        gz = -a + b - c + e
+        src = _sdf_source(prog, scale, off, pts[n, 0], pts[n, 1], pts[n, 2])[1]
+        r = prog[src]
+        out_part[n] = int(r[20])
+        x, y, z = pts[n, 0] / scale + off[0], pts[n, 1] / scale + off[1], pts[n, 2] / scale + off[2]
+        h = eps / scale
+        # The gradient of the row that makes the surface here (the CSG's own gradient but within
+        # eps of a crease): tetrahedral central differences of that primitive alone.
+        a = _row_value(r, x + h, y - h, z - h)
+        b = _row_value(r, x - h, y - h, z + h)
+        c = _row_value(r, x - h, y + h, z - h)
+        e = _row_value(r, x + h, y + h, z + h)
+        sign = -1.0 if (src > 0 and int(r[1]) == SUBTRACT) else 1.0
+        gx = sign * (a - b - c + e)
+        gy = sign * (-a - b + c + e)
+        gz = sign * (-a + b - c + e)
         ln = math.sqrt(gx * gx + gy * gy + gz * gz)
         if ln > 0.0:
             out[n, 0] = gx / ln
@@ -419,11 +437,19 @@ def _trace_many(prog, scale, off, eyes, eye_index, dirs, t_min, lo, hi, thr_k, c
 
 
 def surface_normals(shape: CSGShape, points: np.ndarray, eps: float = 1e-5) -> np.ndarray:
-    """Unit SDF gradients (tetrahedral differences of the analytic SDF) at world points (K, 3) -> (K, 3)."""
+    """Unit SDF gradients at world points (K, 3) -> (K, 3): tetrahedral differences of the primitive
+    whose surface is nearest (``part_at``'s row), which is the CSG's gradient except within ``eps``
+    of a crease, at a quarter of the cost of differencing the whole program."""
+    return surface_normals_and_parts(shape, points, eps)[0]
+
+
+def surface_normals_and_parts(shape: CSGShape, points: np.ndarray, eps: float = 1e-5) -> tuple[np.ndarray, np.ndarray]:
+    """``surface_normals`` and ``part_at`` of the same points in one pass: ((K, 3), (K,) int64)."""
     pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
     out = np.empty_like(pts)
-    _normals_many(shape.program, shape.scale, np.asarray(shape.offset), pts, eps, out)
-    return out
+    part = np.empty(len(pts), dtype=np.int64)
+    _surface_many(shape.program, shape.scale, np.asarray(shape.offset), pts, eps, out, part)
+    return out, part
 
 
 def part_at(shape: CSGShape, points: np.ndarray) -> np.ndarray:

@@ -37,7 +37,7 @@ from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxel
 from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
                          make_shape, procedural_category, style_of)
 from svr.data.procedural.appearance import NEUTRAL_COLOUR, NMR_LIGHTING, Lighting, colour_rng, draw_colours
-from svr.data.procedural.csg import CSGShape, part_at, surface_normals, trace_rays
+from svr.data.procedural.csg import CSGShape, surface_normals_and_parts, trace_rays
 from svr.data.types import ShadingModel
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
@@ -133,8 +133,9 @@ def render_shape(shape: CSGShape, colours: Optional[np.ndarray] = None, lighting
     res = trace_rays(shape, eyes, d1, hit_threshold, (lo, hi), view_of, None, delta)
     hit1, t_hit1, t_cert, clear = res.hit, res.t, res.t_certified, res.clear
     normals1 = np.zeros((n_pix, 3))
+    parts1 = np.zeros(n_pix, dtype=np.int64)
     points1 = eyes[view_of[hit1]] + t_hit1[hit1, None] * d1[hit1]
-    normals1[hit1] = surface_normals(shape, points1)
+    normals1[hit1], parts1[hit1] = surface_normals_and_parts(shape, points1)
 
     # interior pixels: hit, and so are the 8 neighbours, on a smooth patch at similar depth
     interior = _interior_pixels(hit1.reshape(v, h, w), t_hit1.reshape(v, h, w), normals1.reshape(v, h, w, 3),
@@ -155,20 +156,18 @@ def render_shape(shape: CSGShape, colours: Optional[np.ndarray] = None, lighting
 
     # shading of every sample that hit
     use1 = interior & hit1
-    p_int = eyes[view_of[use1]] + t_hit1[use1, None] * d1[use1]
-    n_int = normals1[use1]
     p_sub = eyes[view2[hit2]] + t_hit2[hit2, None] * d2[hit2]
-    n_sub = surface_normals(shape, p_sub) if len(p_sub) else np.zeros((0, 3))
-    pts = np.concatenate([p_int, p_sub])
-    rgb = lighting.shade(np.concatenate([n_int, n_sub]), colours[part_at(shape, pts)])
+    n_sub, part_sub = surface_normals_and_parts(shape, p_sub)
+    albedo = colours[np.concatenate([parts1[use1], part_sub])]
+    rgb = lighting.shade(np.concatenate([normals1[use1], n_sub]), albedo)
     bg = np.ones(3)
 
     out = np.zeros((n_pix, 4))
     out[:, :3] = bg
-    out[use1, :3] = rgb[: len(p_int)]
+    out[use1, :3] = rgb[: int(use1.sum())]
     out[use1, 3] = 1.0
     samples = np.tile(bg, (len(d2), 1))
-    samples[hit2] = rgb[len(p_int):]
+    samples[hit2] = rgb[int(use1.sum()):]
     out[pix, :3] = samples.reshape(len(pix), s * s, 3).mean(1)
     out[pix, 3] = hit2.reshape(len(pix), s * s).mean(1)
     img = out.reshape(v, h, w, 4).transpose(0, 3, 1, 2)
