@@ -65,6 +65,8 @@ class RifleParams:
     bipod: float          # leg length (0: none)
     bolt: bool
     foregrip: bool
+    scope_z: float = 0.0  # the scope's shift along z from over the receiver's middle
+    mag_z: float = 0.0    # the magazine's shift along z from ahead of the trigger guard
 
 
 def sample(rng: np.random.Generator, style: str) -> RifleParams:
@@ -135,7 +137,7 @@ def sample(rng: np.random.Generator, style: str) -> RifleParams:
         muzzle=muzzle, muzzle_len=u(0.1, 0.2) if muzzle == "suppressor" else u(0.06, 0.1),
         bipod=k * u(0.14, 0.24) if (style == "sniper" and chance(rng, 0.7)) or (style == "assault" and chance(rng, 0.1))
         else 0.0, bolt=style in ("hunting", "sniper") and chance(rng, 0.9),
-        foregrip=fore == "handguard" and chance(rng, 0.3))
+        foregrip=fore == "handguard" and chance(rng, 0.3), scope_z=u(-0.12, 0.06), mag_z=u(-0.08, 0.02))
 
 
 def build(p: RifleParams) -> CSGShape:
@@ -217,7 +219,7 @@ def build(p: RifleParams) -> CSGShape:
 
     if p.magazine in ("box", "curved", "drum"):
         b.part("magazine")
-        mz = tz - 0.05 - p.mag_depth / 2 - 0.03
+        mz = max(tz - 0.05 - p.mag_depth / 2 - 0.03 + p.mag_z, zr0 + p.mag_depth / 2)
         if p.magazine == "drum":
             r = p.mag_len * 0.5 + 0.03
             b.cylinder((0, yb - r * 0.8, mz), r, rw + 0.005, ALONG_X)
@@ -234,10 +236,11 @@ def build(p: RifleParams) -> CSGShape:
         b.part("sight")
         if p.sight == "scope":  # on two mounts: a hole between scope and receiver
             sy = ytop + p.scope_h + p.scope_r
-            s0 = (zr0 + zr1) / 2 - p.scope_len / 2
+            s0 = (zr0 + zr1) / 2 - p.scope_len / 2 + p.scope_z
             b.cylinder((0, sy, s0 + p.scope_len / 2), p.scope_r, p.scope_len / 2, ALONG_Z)
             b.cone((0, sy, s0 - 0.035), 0.04, p.scope_r * 1.35, p.scope_r, ALONG_Z)  # objective bell
-            for z in (zr0 + 0.035, zr1 - 0.035):
+            for z in (zr0 + 0.035, zr1 - 0.035):  # under the scope, over the receiver
+                z = min(max(z, s0 + 0.03, zr0 + 0.03), s0 + p.scope_len - 0.03, zr1 - 0.03)
                 b.box((0, (ytop + sy) / 2, z), (rw, (sy - ytop) / 2, 0.0275))
         elif p.sight == "carry":  # a bridge over the receiver (a hole)
             b.box((0, ytop + 0.07, (zr0 + zr1) / 2), (rw, 0.0275, (zr1 - zr0) / 2 - 0.02))

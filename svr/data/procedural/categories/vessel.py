@@ -55,6 +55,8 @@ class VesselParams:
     sheer: float          # the deck falls by this fraction of the depth from amidships to the stern
     oars: float           # rowboat: the oars' angle back from across (0: no oars)
     fins: float           # submarine fin span
+    jib_top: float = 0.85  # the jib's head, fraction of the mast
+    screen_rake: float = 0.75  # the speedboat's windscreen tilt back (rad)
     deck_th: float = 0.0  # a carrier's flight deck: its thickness (0: none)
     deck_hw: float = 0.0  # and half width, wider than the hull
     tier_x: float = 0.0   # the superstructure's offset to starboard (a carrier's island)
@@ -68,9 +70,9 @@ def sample(rng: np.random.Generator, style: str) -> VesselParams:
     cabin, cabin_h, cockpit, wall, thwarts, motor, keel, fins = 0.0, 0.0, 0.0, 0.0, 0, False, 0.0, 0.0
     v_rise, stern_taper, flare, stem = 0.0, 0.0, u(0.0, 0.7), u(0.2, 1.0)
     sheer = u(0.0, 0.45) if chance(rng, 0.5) else 0.0
-    oars, deck_th, deck_hw, tier_x = 0.0, 0.0, 0.0, 0.0
+    oars, deck_th, deck_hw, tier_x, jib_top = 0.0, 0.0, 0.0, 0.0, 0.85
     if style in ("ship", "tanker"):
-        beam, depth = u(0.1, 0.26), u(0.05, 0.16)
+        beam, depth = u(0.1, 0.27), u(0.05, 0.19)
         bow = u(0.08, 0.35)
         stern_taper = u(0.0, 0.15)
         v_rise = u(0.2, 0.6) if chance(rng, 0.4) else 0.0
@@ -79,7 +81,7 @@ def sample(rng: np.random.Generator, style: str) -> VesselParams:
             z = u(-0.2, 0.25)
         else:
             z = u(0.3, 0.4)
-        half, w = (u(0.06, 0.22) if style == "ship" else u(0.04, 0.09)), u(0.28, 0.46)
+        half, w = (u(0.06, 0.22) if style == "ship" else u(0.04, 0.12)), u(0.28, 0.46)
         tiers_l = []
         for k in range(n):
             h = u(0.057, 0.13)
@@ -109,9 +111,10 @@ def sample(rng: np.random.Generator, style: str) -> VesselParams:
         beam, depth = u(0.14, 0.32), u(0.055, 0.12)
         bow, v_rise, stern_taper = u(0.25, 0.45), u(0.2, 0.5), u(0.0, 0.2)
         two = chance(rng, 0.25)
-        zm = -0.5 + u(0.3, 0.45)
-        masts = ((zm, u(0.4, 0.85)),) + (((zm + u(0.3, 0.4), u(0.25, 0.45)),) if two else ())
-        sails = tuple(u(0.2, 0.42) if k == 0 else u(0.12, 0.2) for k in range(len(masts)))
+        zm = -0.5 + u(0.25, 0.5)
+        masts = ((zm, u(0.35, 0.9)),) + (((zm + u(0.25, 0.4), u(0.2, 0.5)),) if two else ())
+        sails = tuple(u(0.18, 0.48) if k == 0 else u(0.1, 0.22) for k in range(len(masts)))
+        jib_top = u(0.6, 0.95)
         jib = chance(rng, 0.7)
         cabin, cabin_h = u(0.12, 0.3), u(0.035, 0.07)
         keel = u(0.06, 0.14)
@@ -151,7 +154,8 @@ def sample(rng: np.random.Generator, style: str) -> VesselParams:
         stern_taper=stern_taper, tiers=tiers, funnels=funnels, masts=masts, turrets=turrets, cargo=cargo,
         cargo_h=cargo_h, cargo_n=cargo_n, forecastle=forecastle, sails=sails, jib=jib, cabin=cabin,
         cabin_h=cabin_h, cockpit=cockpit, wall=wall, thwarts=thwarts, motor=motor, keel=keel, fins=fins, sheer=sheer,
-        oars=oars, deck_th=deck_th, deck_hw=deck_hw, tier_x=tier_x)
+        oars=oars, deck_th=deck_th, deck_hw=deck_hw, tier_x=tier_x, jib_top=jib_top,
+        screen_rake=u(0.45, 1.1))
 
 
 def _hull(b: CSGBuilder, p: VesselParams) -> None:
@@ -192,8 +196,9 @@ def build(p: VesselParams) -> CSGShape:
         zm, top = p.masts[0][0], depth + p.masts[0][1]
         if p.jib:  # from the masthead to the bow
             jz = front + 0.08
-            b.box_between((-0.0275, depth + 0.02, jz), (0.0275, top * 0.85, zm))
-            cut_beyond(b, (0, top * 0.85, zm), (0, depth + 0.02, jz), X, (0, 1, -1), 0.05)
+            jt = depth + (top - depth) * p.jib_top
+            b.box_between((-0.0275, depth + 0.02, jz), (0.0275, jt, zm))
+            cut_beyond(b, (0, jt, zm), (0, depth + 0.02, jz), X, (0, 1, -1), 0.05)
         for (z, h), boom in zip(p.masts, p.sails):
             foot, mtop = depth + 0.08, depth + h
             b.box((0, (foot + mtop) / 2, z + boom / 2), (0.0275, (mtop - foot) / 2, boom / 2))
@@ -267,7 +272,7 @@ def build(p: VesselParams) -> CSGShape:
                                                                                0.0285))
     if p.style == "speedboat":
         z1 = p.length / 2 - 1.5 * 0.055 - p.cockpit
-        ws = rotation(X, -0.75)
+        ws = rotation(X, -p.screen_rake)
         b.box(np.array([0.0, depth + 0.04, z1 + 0.02]), (beam / 2 - 0.04, 0.05, 0.0275), ws, rounding=0.01)
     if p.motor:
         b.part("motor")
