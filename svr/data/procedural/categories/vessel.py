@@ -1,134 +1,332 @@
-"""The procedural vessel (see ``make_vessel`` for its styles)."""
+"""The procedural vessel, along z with the bow to -z, 1 long, the keel on y = 0. Six styles: "ship"
+(one to four stacked deckhouse tiers anywhere from amidships to aft, zero to two funnels, one or two
+masts, optional gun turrets; in 20% a carrier, a flight deck wider than the hull with the island to
+starboard), "tanker" (long flat deck, a stacked bridge aft, a funnel, containers, a hatch block or a
+pipe deck, optional forecastle), "sailboat" (narrow hull with a keel, one or two masts with a
+mainsail each and an optional jib, cabin roof), "speedboat" (V hull, cockpit, raked windscreen,
+optional deckhouse, hard top and outboard motor), "rowboat" (an open hull with one to four thwarts,
+a transom or a pointed canoe stern, optional oars or motor) and "submarine" (a capsule hull, a tail
+cone 1.5-4 radii long, a sail and a cross of stern fins). Every hull draws its beam (0.07-0.45 of
+the length), depth (0.05-0.21), bow length (0.08-0.5), flare, stem rake, V bottom, stern taper and
+a deck that falls aft (sheer, in half of them); superstructures draw their count, sizes and
+placement from continuous ranges.
+"""
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import uniform, chance, cut_beyond, X, Y, Z, ALONG_Z
+from svr.data.procedural.categories.blocks import uniform, chance, cut_beyond, X, Y, Z, ALONG_X, ALONG_Z
+
+STYLES = ("ship", "sailboat", "speedboat", "rowboat", "tanker", "submarine")
+CARGO = ("none", "containers", "hatches", "pipes")
 
 
-def _hull(b: CSGBuilder, length: float, beam: float, depth: float, bow: float, v_rise: float,
-          stern_taper: float) -> None:
-    """A hull on y in [0, depth] along z: a box cut to a pointed bow over ``bow`` of its length,
-    its forefoot raked, optionally a V bottom and a narrowed stern. The cuts stay below the deck
-    (y = depth), so they miss masts and sails built before the hull. ``v_rise``: the height of the
-    V bottom's chines as a fraction of the depth (0: flat bottom)."""
+@dataclass(frozen=True)
+class VesselParams:
+    style: str
+    length: float
+    beam: float
+    depth: float
+    bow: float            # length of the pointed bow
+    flare: float          # how far the bow's sides lean out (the side cuts' tilt)
+    stem: float           # the stem's rake: the forefoot cut's height at the bow, fraction of depth
+    v_rise: float         # V bottom: chine height, fraction of depth (0: flat)
+    stern_taper: float    # length over which the stern narrows (0: a square transom)
+    tiers: tuple[tuple[float, float, float, float], ...]  # superstructure: (z, half length, half width, height)
+    funnels: tuple[tuple[float, float, float], ...]       # (z, radius, height)
+    masts: tuple[tuple[float, float], ...]                # (z, height)
+    turrets: tuple[float, ...]                            # z of each gun turret
+    cargo: str            # CARGO
+    cargo_h: float
+    cargo_n: int
+    forecastle: float     # length of a raised forecastle (0: none)
+    sails: tuple[float, ...]  # per mast: the boom's length (sailboat)
+    jib: bool
+    cabin: float          # cabin / hardtop length (0: none)
+    cabin_h: float
+    cockpit: float        # cockpit / open hull length (0: decked)
+    wall: float
+    thwarts: int
+    motor: bool
+    keel: float           # keel depth (sailboat)
+    sheer: float          # the deck falls by this fraction of the depth from amidships to the stern
+    oars: float           # rowboat: the oars' angle back from across (0: no oars)
+    fins: float           # submarine fin span
+    jib_top: float = 0.85  # the jib's head, fraction of the mast
+    screen_rake: float = 0.75  # the speedboat's windscreen tilt back (rad)
+    deck_th: float = 0.0  # a carrier's flight deck: its thickness (0: none)
+    deck_hw: float = 0.0  # and half width, wider than the hull
+    tier_x: float = 0.0   # the superstructure's offset to starboard (a carrier's island)
+
+
+def sample(rng: np.random.Generator, style: str) -> VesselParams:
+    u = lambda lo, hi: uniform(rng, lo, hi)  # noqa: E731
+    length = 1.0
+    tiers, funnels, masts, turrets, sails = (), (), (), (), ()
+    cargo, cargo_h, cargo_n, forecastle, jib = "none", 0.0, 0, 0.0, False
+    cabin, cabin_h, cockpit, wall, thwarts, motor, keel, fins = 0.0, 0.0, 0.0, 0.0, 0, False, 0.0, 0.0
+    v_rise, stern_taper, flare, stem = 0.0, 0.0, u(0.0, 0.7), u(0.2, 1.0)
+    sheer = u(0.0, 0.45) if chance(rng, 0.5) else 0.0
+    oars, deck_th, deck_hw, tier_x, jib_top = 0.0, 0.0, 0.0, 0.0, 0.85
+    if style in ("ship", "tanker"):
+        beam, depth = u(0.1, 0.27), u(0.05, 0.19)
+        bow = u(0.08, 0.35)
+        stern_taper = u(0.0, 0.15)
+        v_rise = u(0.2, 0.6) if chance(rng, 0.4) else 0.0
+        n = int(rng.integers(1, 5)) if style == "ship" else int(rng.integers(1, 4))
+        if style == "ship":
+            z = u(-0.2, 0.25)
+        else:
+            z = u(0.3, 0.4)
+        half, w = (u(0.06, 0.22) if style == "ship" else u(0.04, 0.12)), u(0.28, 0.46)
+        tiers_l = []
+        for k in range(n):
+            h = u(0.057, 0.13)
+            tiers_l.append((z, half, w * beam, h))
+            z -= u(0.0, 0.5) * half if style == "ship" else u(0.0, 0.3) * half
+            half, w = max(half * u(0.45, 0.85), 0.035), w * u(0.7, 1.0)
+        tiers = tuple(tiers_l)
+        top_z, top_half = tiers[-1][0], tiers[-1][1]
+        nf = int(rng.choice([0, 1, 2], p=[0.2, 0.6, 0.2])) if style == "ship" else 1
+        base_z = tiers[0][0] + tiers[0][1] * u(0.2, 0.6)
+        funnels = tuple((base_z + k * u(0.08, 0.14), u(0.04, 0.055), u(0.08, 0.16)) for k in range(nf))
+        masts = tuple((max(top_z - top_half * u(-0.3, 0.6) + k * u(-0.35, -0.2), -0.5 + bow + 0.05), u(0.1, 0.25))
+                      for k in range(int(rng.integers(1, 3)) if style == "ship" else 1))
+        carrier = style == "ship" and chance(rng, 0.2)
+        if carrier:  # a flight deck over the hull, the island to starboard
+            deck_th, deck_hw, sheer, nf = u(0.057, 0.08), beam * u(0.65, 0.9), 0.0, min(nf, 1)
+            tiers = tuple((z, half, max(hw * 0.6, 0.04), h) for z, half, hw, h in tiers[:2])
+            tier_x = deck_hw - max(tiers[0][2], 0.04) - u(0.0, 0.03)
+            funnels = funnels[:nf]
+        if style == "ship" and not carrier and chance(rng, 0.35):
+            turrets = tuple(-0.5 + u(0.2, 0.3) + k * 0.12 for k in range(int(rng.integers(1, 3))))
+        if style == "tanker":
+            cargo = str(rng.choice(["containers", "hatches", "pipes"], p=[0.4, 0.3, 0.3]))
+            cargo_h, cargo_n = u(0.06, 0.15), int(rng.integers(2, 6))
+            forecastle = u(0.06, 0.14) if chance(rng, 0.5) else 0.0
+    elif style == "sailboat":
+        beam, depth = u(0.14, 0.32), u(0.055, 0.12)
+        bow, v_rise, stern_taper = u(0.25, 0.45), u(0.2, 0.5), u(0.0, 0.2)
+        two = chance(rng, 0.25)
+        zm = -0.5 + u(0.25, 0.5)
+        masts = ((zm, u(0.35, 0.9)),) + (((zm + u(0.25, 0.4), u(0.2, 0.5)),) if two else ())
+        sails = tuple(u(0.18, 0.48) if k == 0 else u(0.1, 0.22) for k in range(len(masts)))
+        jib_top = u(0.6, 0.95)
+        jib = chance(rng, 0.7)
+        cabin, cabin_h = u(0.12, 0.3), u(0.035, 0.07)
+        keel = u(0.06, 0.14)
+    elif style == "speedboat":
+        beam, depth = u(0.22, 0.45), u(0.09, 0.2)
+        bow, v_rise = u(0.2, 0.5), u(0.15, 0.5)
+        cockpit = u(0.25, 0.5)
+        sheer = 0.0
+        cabin = u(0.1, 0.25) if chance(rng, 0.4) else 0.0
+        cabin_h = u(0.06, 0.1)
+        if chance(rng, 0.5):  # a cabin cruiser: a deckhouse ahead of the cockpit
+            half = u(0.08, 0.2)
+            tiers = ((0.5 - 1.5 * 0.055 - cockpit - half + 0.01, half, beam * u(0.3, 0.42), u(0.057, 0.12)),)
+        motor = chance(rng, 0.6)
+    elif style == "rowboat":
+        canoe = chance(rng, 0.3)
+        beam, depth = (u(0.12, 0.2), u(0.07, 0.12)) if canoe else (u(0.25, 0.45), u(0.145, 0.21))
+        bow = u(0.25, 0.4)
+        stern_taper = u(0.2, 0.35) if canoe else u(0.03, 0.12)
+        wall = u(0.055, 0.062)
+        cockpit = 1.0
+        thwarts = int(rng.integers(1, 5)) if not canoe else int(rng.integers(1, 3))
+        oars = u(0.2, 1.0) if not canoe and chance(rng, 0.45) else 0.0
+        motor = not canoe and oars == 0 and chance(rng, 0.35)
+    elif style == "submarine":
+        beam = u(0.07, 0.2)
+        sheer = 0.0
+        depth = beam
+        tiers = ((u(-0.3, 0.15), u(0.04, 0.15), max(beam * u(0.25, 0.4), 0.04), u(0.06, 0.2)),)
+        fins = u(0.06, 0.2)
+        stern_taper = u(1.5, 4.0)  # the tail cone's length in hull radii
+        bow = 0.0
+    else:
+        raise ValueError(f"unknown vessel style {style!r}; expected one of {STYLES}")
+    return VesselParams(
+        style=style, length=length, beam=beam, depth=depth, bow=bow, flare=flare, stem=stem, v_rise=v_rise,
+        stern_taper=stern_taper, tiers=tiers, funnels=funnels, masts=masts, turrets=turrets, cargo=cargo,
+        cargo_h=cargo_h, cargo_n=cargo_n, forecastle=forecastle, sails=sails, jib=jib, cabin=cabin,
+        cabin_h=cabin_h, cockpit=cockpit, wall=wall, thwarts=thwarts, motor=motor, keel=keel, fins=fins, sheer=sheer,
+        oars=oars, deck_th=deck_th, deck_hw=deck_hw, tier_x=tier_x, jib_top=jib_top,
+        screen_rake=u(0.45, 1.1))
+
+
+def _hull(b: CSGBuilder, p: VesselParams) -> None:
+    """A hull on y in [0, depth] along z: a box cut to a pointed bow, its stem raked, optionally a V
+    bottom and a narrowed stern. The cuts stay below the deck (y = depth), so they miss masts and
+    sails built before the hull."""
+    length, beam, depth, bow = p.length, p.beam, p.depth, p.bow * p.length
     front = -length / 2
     b.box((0, depth / 2, 0), (beam / 2, depth / 2, length / 2))
     hy = depth / 2 + 0.005
     for s in (-1, 1):
-        cut_beyond(b, (s * beam / 2, depth / 2, front + bow), (0, depth / 2, front), Y, (s, 0, -0.3), hy,
+        cut_beyond(b, (s * beam / 2, depth / 2, front + bow), (0, depth / 2, front), Y, (s, 0, -p.flare), hy,
                     margin=0.05)
-    cut_beyond(b, (0, 0, front + bow * 1.2), (0, depth * 0.7, front), X, (0, -1, -1), beam / 2 + 0.01,
+    cut_beyond(b, (0, 0, front + bow * 1.2), (0, depth * p.stem, front), X, (0, -1, -1), beam / 2 + 0.01,
                 margin=0.05)
-    if v_rise > 0:
+    if p.v_rise > 0:
         for s in (-1, 1):
-            cut_beyond(b, (s * beam / 2, depth * v_rise, 0), (0, 0, 0), Z, (s, -1, 0), length / 2 + 0.01, margin=0.0)
-    if stern_taper > 0:
+            cut_beyond(b, (s * beam / 2, depth * p.v_rise, 0), (0, 0, 0), Z, (s, -1, 0), length / 2 + 0.01,
+                        margin=0.0)
+    if p.sheer > 0:  # the deck falls aft of amidships (the cut's box stays below the sails' feet)
+        drop = p.sheer * depth
+        cut_beyond(b, (0, depth, 0.0), (0, depth - drop, length / 2), X, (0, 1, 0), beam / 2 + 0.01,
+                    depth=drop + 0.015, margin=0.02)
+    if p.stern_taper > 0.01:
+        taper = p.stern_taper * length
         for s in (-1, 1):
-            cut_beyond(b, (s * beam / 2, depth / 2, length / 2 - stern_taper),
-                        (s * beam * 0.35, depth / 2, length / 2), Y, (s, 0, 1), hy, margin=0.02)
+            cut_beyond(b, (s * beam / 2, depth / 2, length / 2 - taper), (s * beam * 0.3, depth / 2, length / 2), Y,
+                        (s, 0, 1), hy, margin=0.02)
 
 
-def make_vessel(rng: np.random.Generator, style: str) -> CSGShape:
-    """Along z, bow to -z. "ship": deckhouse, bridge, funnel and mast; "sailboat": narrow hull
-    with a keel, a mast and one or two triangular sails; "speedboat": wide V hull with a cockpit
-    and a windscreen; "rowboat": an open hull with thwarts across it (holes), no superstructure;
-    "tanker": long flat deck, bridge and funnel at the stern."""
+def build(p: VesselParams) -> CSGShape:
     b = CSGBuilder()
-    length = uniform(rng, 0.95, 1.0)
-    front = -length / 2
-    if style == "sailboat":
-        beam, depth = uniform(rng, 0.2, 0.26), uniform(rng, 0.08, 0.11)
-        mast_h = uniform(rng, 0.5, 0.8)
-        zm = front + length * uniform(rng, 0.35, 0.45)
-        top = depth + mast_h
-        foot = depth + 0.08
-        if chance(rng, 0.7):  # jib from the masthead to the bow
+    if p.style == "submarine":
+        return _submarine(b, p)
+    front, depth, beam = -p.length / 2, p.depth, p.beam
+    if p.style == "sailboat":  # the sails first: cut to triangles by planes that must miss the rest
+        b.part("sails")
+        zm, top = p.masts[0][0], depth + p.masts[0][1]
+        if p.jib:  # from the masthead to the bow
             jz = front + 0.08
-            b.box_between((-0.0275, depth + 0.02, jz), (0.0275, top * 0.85, zm))
-            cut_beyond(b, (0, top * 0.85, zm), (0, depth + 0.02, jz), X, (0, 1, -1), 0.05)
-        boom = uniform(rng, 0.35, 0.5)
-        b.box((0, (foot + top) / 2, zm + boom / 2), (0.0275, (top - foot) / 2, boom / 2))
-        cut_beyond(b, (0, top, zm), (0, foot, zm + boom), X, (0, 1, 1), 0.05)
-        b.cylinder((0, (depth + top) / 2, zm), 0.03, (top - depth) / 2)
-        b.box((0, foot - 0.03, zm + boom / 2), (0.03, 0.03, boom / 2 + 0.02))  # boom
-        _hull(b, length, beam, depth, length * uniform(rng, 0.3, 0.4), 0.4, length * 0.15)
-        b.box((0, depth + 0.03, zm + 0.12), (beam * 0.3, 0.04, 0.1), rounding=0.02)  # cabin roof
-        b.box((0, -0.06, zm + 0.05), (0.03, 0.08, 0.1))  # keel
-        return b.shape()
-    if style == "speedboat":
-        beam, depth = uniform(rng, 0.3, 0.38), uniform(rng, 0.13, 0.16)
-        v_rise = 0.3
-        _hull(b, length, beam, depth, length * uniform(rng, 0.3, 0.4), v_rise, 0.0)
-        cz0, cz1 = uniform(rng, -0.1, 0.0), length / 2 - uniform(rng, 0.08, 0.15)
-        floor = depth * v_rise * 0.75 + 0.06  # over the V at the cockpit's sides
-        b.box_between((-beam / 2 + 0.055, floor, cz0), (beam / 2 - 0.055, depth + 0.1, cz1), op="subtract")  # cockpit
-        ws = rotation(X, -uniform(rng, 0.6, 0.9))
-        b.box(np.array([0.0, depth + 0.04, cz0 - 0.02]), (beam / 2 - 0.04, 0.05, 0.0275), ws, rounding=0.01)
-        if chance(rng, 0.6):  # outboard motor on the transom
-            b.box((0, depth + 0.02, length / 2 + 0.04), (0.05, 0.06, 0.05), rounding=0.02)
-            b.box((0, depth * 0.2, length / 2 + 0.04), (0.0275, depth * 0.6, 0.03))
-        return b.shape()
-    if style == "rowboat":
-        beam, depth = uniform(rng, 0.3, 0.4), uniform(rng, 0.12, 0.16)
-        bow = length * uniform(rng, 0.25, 0.35)
-        _hull(b, length, beam, depth, bow, 0.0, length * uniform(rng, 0.06, 0.1))
-        wall = uniform(rng, 0.055, 0.065)
-        stern = length / 2 - length * 0.1 - wall
-        b.box_between((-beam / 2 + wall, wall, front + bow + 0.01), (beam / 2 - wall, depth + 0.1, stern),
-                      op="subtract")
-        n = int(rng.integers(2, 4))
+            jt = depth + (top - depth) * p.jib_top
+            b.box_between((-0.0275, depth + 0.02, jz), (0.0275, jt, zm))
+            cut_beyond(b, (0, jt, zm), (0, depth + 0.02, jz), X, (0, 1, -1), 0.05)
+        for (z, h), boom in zip(p.masts, p.sails):
+            foot, mtop = depth + 0.08, depth + h
+            b.box((0, (foot + mtop) / 2, z + boom / 2), (0.0275, (mtop - foot) / 2, boom / 2))
+            cut_beyond(b, (0, mtop, z), (0, foot, z + boom), X, (0, 1, 1), 0.05)
+    b.part("hull")
+    _hull(b, p)
+    if p.cockpit > 0:  # an open hull or a cockpit: a hollow behind the bow, open at the top
+        wall = max(p.wall, 0.055)
+        if p.style == "rowboat":
+            z0 = front + p.bow * p.length + 0.01
+            z1 = p.length / 2 - max(p.stern_taper * p.length, 0.0) - wall
+            floor = wall
+        else:
+            z1 = p.length / 2 - wall * 1.5
+            z0 = z1 - p.cockpit
+            floor = depth * p.v_rise * 0.75 + 0.06
+        b.box_between((-beam / 2 + wall, floor, z0), (beam / 2 - wall, depth + 0.1, z1), op="subtract")
+        b.part("seats")
+        for k in range(p.thwarts):  # seats across the open hull (holes under them)
+            z = z0 + (z1 - z0) * (k + 0.6) / (p.thwarts + 0.2)
+            b.box((0, depth - 0.033, z), (beam / 2 - wall / 2, 0.0285, 0.04))
+    if p.oars > 0:  # through the gunwales, blades down in the water
+        b.part("oars")
+        z = front + p.bow * p.length + 0.5 * (p.length / 2 - front - p.bow * p.length)
+        for s in (-1, 1):
+            tip = np.array([s * (beam / 2 + 0.22), -0.02, z + 0.22 * np.sin(p.oars)])
+            b.rod((0, depth - 0.03, z), tip, 0.0285)
+    if p.keel > 0:
+        b.part("hull")
+        zm = p.masts[0][0]
+        b.box((0, -p.keel / 2 + 0.02, zm + 0.05), (0.0285, p.keel / 2 + 0.02, 0.09))
+
+    b.part("deck")
+    if p.deck_th > 0:
+        z0 = front + p.bow * 0.5
+        b.box((0, depth + p.deck_th / 2 - 0.005, (z0 + 0.49) / 2), (p.deck_hw, p.deck_th / 2, (0.49 - z0) / 2))
+    y = depth + p.deck_th
+    for k, (z, half, hw, h) in enumerate(p.tiers):  # stacked: each on the one before
+        lo = _deck_y(p, z + half) if k == 0 else y  # down to a deck that falls aft
+        b.box((p.tier_x, (lo + y + h) / 2 - 0.005, z), (max(hw, 0.04), (y + h - lo) / 2, half), rounding=0.01)
+        y += h - 0.005
+    if p.forecastle > 0:
+        b.box((0, depth + 0.025, front + p.bow * 0.6 + p.forecastle / 2), (beam * 0.3, 0.0285, p.forecastle / 2))
+    if p.cargo == "containers":  # stacks across the deck between bow and bridge
+        z0, z1 = front + p.bow + 0.03, p.tiers[0][0] - p.tiers[0][1] - 0.03
+        n = max(1, min(p.cargo_n, int((z1 - z0) / 0.08)))
+        span = (z1 - z0) / n
         for k in range(n):
-            z = front + bow + (stern - front - bow) * (k + 0.7) / (n + 0.4)
-            b.box((0, depth - 0.04, z), (beam / 2 - wall / 2, 0.0275, 0.045))
-        return b.shape()
-    # ship, tanker
-    beam, depth = uniform(rng, 0.16, 0.24), uniform(rng, 0.09, 0.13)
-    _hull(b, length, beam, depth, length * uniform(rng, 0.15, 0.25), 0.0, length * uniform(rng, 0.0, 0.06))
-    if style == "tanker":
-        zb = length / 2 - uniform(rng, 0.12, 0.16)
-        bh = uniform(rng, 0.12, 0.18)
-        b.box((0, depth + bh / 2, zb), (beam * 0.42, bh / 2, uniform(rng, 0.05, 0.07)))
-        b.box((0, depth + bh - 0.0275, zb - 0.02), (beam * 0.55, 0.0275, 0.04))  # bridge wings
-        b.box((0, depth + bh * 0.6, zb + 0.09), (0.035, bh * 0.6, 0.035), rotation(X, 0.15))  # funnel
-        if chance(rng, 0.5):  # containers
-            n = int(rng.integers(3, 6))
-            span = zb - 0.1 - (front + length * 0.2)
-            for k in range(n):
-                z = front + length * 0.2 + span * (k + 0.5) / n
-                b.box((0, depth + 0.04, z), (beam * 0.42, 0.04, span / n * 0.42))
-        else:  # a pipe deck: a catwalk down the middle and a forecastle
-            b.box((0, depth + 0.03, 0.0), (0.035, 0.03, length * 0.3))
-            b.box((0, depth + 0.03, front + 0.12), (beam * 0.3, 0.03, 0.05))
-        return b.shape()
-    zh = uniform(rng, -0.05, 0.15)
-    hl = uniform(rng, 0.12, 0.18)
-    dh = uniform(rng, 0.06, 0.1)
-    b.box((0, depth + dh / 2, zh), (beam * 0.38, dh / 2, hl), rounding=0.01)  # deckhouse
-    bh = uniform(rng, 0.06, 0.08)
-    zbr = zh - hl * 0.5
-    b.box((0, depth + dh + bh / 2, zbr), (beam * 0.33, bh / 2, uniform(rng, 0.045, 0.065)), rounding=0.01)  # bridge
-    if chance(rng, 0.6):
-        b.box((0, depth + dh + bh - 0.0275, zbr), (beam * 0.5, 0.0275, 0.035))  # bridge wings
-    fh = uniform(rng, 0.08, 0.13)
-    b.cylinder((0, depth + dh + fh / 2, zh + hl * 0.45), uniform(rng, 0.035, 0.045), fh / 2, rotation(X, 0.2))  # funnel
-    mh = uniform(rng, 0.12, 0.22)
-    b.cylinder((0, depth + dh + bh + mh / 2, zbr + 0.03), 0.0275, mh / 2)  # mast
-    b.box((0, depth + dh + bh + mh * 0.7, zbr + 0.03), (uniform(rng, 0.06, 0.09), 0.0275, 0.0275))  # yard
-    if chance(rng, 0.4):  # a gun turret on the foredeck
-        tz = front + length * 0.25
+            zc = z0 + span * (k + 0.5)
+            lo = _deck_y(p, zc + span * 0.42) - 0.005
+            b.box((0, (lo + depth + p.cargo_h) / 2, zc), (beam * 0.42, (depth + p.cargo_h - lo) / 2, span * 0.42))
+    elif p.cargo == "hatches":
+        z0, z1 = front + p.bow + 0.03, p.tiers[0][0] - p.tiers[0][1] - 0.03
+        lo = _deck_y(p, z1) - 0.005
+        top = depth + max(p.cargo_h * 0.5, 0.057)
+        b.box((0, (lo + top) / 2, (z0 + z1) / 2), (beam * 0.4, (top - lo) / 2, (z1 - z0) / 2))
+    elif p.cargo == "pipes":  # a catwalk down the middle
+        z0, z1 = front + p.bow * 0.8, p.tiers[0][0] - p.tiers[0][1]
+        b.box((0, depth + 0.03, (z0 + z1) / 2), (0.0285, 0.03, (z1 - z0) / 2))
+    if p.cabin > 0:
+        if p.style == "sailboat":
+            zc = p.masts[0][0] + p.cabin / 2 - 0.03
+            lo = _deck_y(p, zc + p.cabin / 2) - 0.02
+            b.box((0, (lo + depth + p.cabin_h) / 2, zc), (beam * 0.32, (depth + p.cabin_h - lo) / 2, p.cabin / 2),
+                  rounding=0.02)
+        else:  # a hard top over the cockpit's front on two posts (holes)
+            z1 = p.length / 2 - 1.5 * max(p.wall, 0.055) - p.cockpit
+            zc = z1 + p.cabin / 2
+            b.box((0, depth + p.cabin_h + 0.03, zc), (beam / 2 - 0.04, 0.0285, p.cabin / 2))
+            b.box((0, depth + (p.cabin_h + 0.03) / 2, zc + p.cabin / 2 - 0.03), (beam / 2 - 0.04, (p.cabin_h + 0.03) / 2,
+                                                                               0.0285))
+    if p.style == "speedboat":
+        z1 = p.length / 2 - 1.5 * 0.055 - p.cockpit
+        ws = rotation(X, -p.screen_rake)
+        b.box(np.array([0.0, depth + 0.04, z1 + 0.02]), (beam / 2 - 0.04, 0.05, 0.0275), ws, rounding=0.01)
+    if p.motor:
+        b.part("motor")
+        b.box((0, depth + 0.02, p.length / 2 + 0.04), (0.05, 0.06, 0.05), rounding=0.02)
+        b.box((0, depth * 0.2, p.length / 2 + 0.04), (0.0285, depth * 0.6, 0.03))
+    if p.funnels or p.masts and p.style != "sailboat" or p.turrets:
+        b.part("fittings")
+    for z, r, h in p.funnels:
+        y1 = _deck_at(p, z)
+        b.cylinder((p.tier_x, y1 + h / 2 - 0.01, z), r, h / 2, rotation(X, 0.15))
+    if p.style == "sailboat":
+        b.part("masts")
+        for z, h in p.masts:
+            lo = _deck_y(p, z) - 0.01
+            b.cylinder((0, (lo + depth + h) / 2, z), 0.0285, (depth + h - lo) / 2)
+            b.box((0, depth + 0.05, z + 0.1), (0.0285, 0.03, 0.12))  # boom
+    else:
+        for z, h in p.masts:
+            y_top = _deck_at(p, z)
+            b.cylinder((p.tier_x, y_top + h / 2 - 0.01, z), 0.0285, h / 2)
+            b.box((p.tier_x, y_top + h * 0.7, z), (0.08, 0.0285, 0.0285))  # yard
+    for tz in p.turrets:
         b.cylinder((0, depth + 0.03, tz), 0.05, 0.03)
-        b.cylinder((0, depth + 0.035, tz - 0.09), 0.0275, 0.07, ALONG_Z)
+        b.cylinder((0, depth + 0.035, tz - 0.08), 0.0285, 0.06, ALONG_Z)
     return b.shape()
 
 
-STYLES = ('ship', 'sailboat', 'speedboat', 'rowboat', 'tanker')
+def _deck_at(p: VesselParams, z: float) -> float:
+    """The height of the superstructure's top at z (the deck where no tier covers z)."""
+    y = _deck_y(p, z)
+    for tz, half, _, h in p.tiers:
+        if abs(z - tz) > half - 0.02:
+            break
+        y = max(y, p.depth + p.deck_th) + h - 0.005
+    return y
 
 
-def sample(rng: np.random.Generator, style: str):
-    return rng, style  # the generator itself: this category draws while it builds
+def _deck_y(p: VesselParams, z: float) -> float:
+    """The deck's height at z: level, or falling aft of amidships by ``sheer``."""
+    return p.depth * (1.0 - p.sheer * max(z, 0.0) / (p.length / 2)) + p.deck_th
 
 
-def build(params) -> CSGShape:
-    return make_vessel(*params)
+def _submarine(b: CSGBuilder, p: VesselParams) -> CSGShape:
+    r = p.beam / 2
+    b.part("hull")
+    tail = p.stern_taper * r
+    b.capsule((0, r, -0.5 + r), (0, r, 0.5 - tail), r)
+    b.cone((0, r, 0.5 - tail / 2), tail / 2, r, 0.03, ALONG_Z)
+    b.part("deck")
+    z, half, hw, h = p.tiers[0]
+    b.box((0, 2 * r + h / 2 - 0.02, z), (hw, h / 2 + 0.02, half), rounding=0.02)
+    b.box((0, 2 * r + h * 0.6, z), (hw + 0.06, 0.0285, 0.04))  # dive planes on the sail
+    b.part("fins")
+    zf = 0.5 - 0.6 * tail
+    b.box((0, r, zf), (r + p.fins / 2, 0.0285, 0.045))
+    b.box((0, r, zf), (0.0285, r + p.fins / 2, 0.045))
+    return b.shape()
