@@ -227,24 +227,10 @@ def test_lamp_styles_differ_in_structure():
     assert _genus(make_shape("lamp", [11, 0], style="desk")) >= 1
 
 
-def test_car_styles_differ_in_structure():
-    """All stand on wheels, not on the body; at the rear a wagon's roof is higher than the bonnet,
-    a saloon's boot about as high, a pickup's open bed lower."""
-    for k in range(3):
-        rise = {}
-        for style in ("sedan", "wagon", "pickup"):
-            shape = make_shape("car", [12, k], style=style)
-            lo, hi = shape.bounds
-            assert not _inside(shape, 0.0, lo[1] + 0.01, 0.3), style  # clearance under the body
-            assert _inside(shape, 0.8 * hi[0], lo[1] + 0.01, 0.3) or _inside(shape, 0.8 * hi[0], lo[1] + 0.01, -0.3)
-            rise[style] = _top_at(shape, 0.0, 0.3) - _top_at(shape, 0.0, -0.3)
-        assert rise["wagon"] > 0.08 and abs(rise["sedan"]) < 0.04 and rise["pickup"] < -0.04, rise
-
-
 def test_holes_where_the_category_has_them():
     cases = [("table", "lower_shelf"), ("bench", "park"), ("rifle", "hunting"), ("vessel", "rowboat"),
-             ("lamp", "desk"), ("cabinet", "open_shelves"), ("phone", "desk")]
-    for name, style in cases:
+             ("lamp", "desk"), ("cabinet", "open_shelves")]
+    for name, style in cases:  # car and phone: tests/svr/test_categories_car.py
         assert _genus(make_shape(name, [9, 0], style=style)) >= 1, (name, style)
 
 
