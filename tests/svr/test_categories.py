@@ -156,22 +156,6 @@ def test_parts_are_thick_enough_for_the_benchmark_grid(name, style):
     assert _thin_surface_fraction(make_shape(name, [5, 0], style=style)) < 0.1
 
 
-def test_chair_styles_differ_in_structure():
-    """Four legs and a solid back: no hole; slats or rails: holes in the back; arms: a loop each
-    side; swivel: a central column under the seat where four-legged chairs have none."""
-    for k in range(2):
-        assert _genus(make_shape("chair", [8, k], style="four_legs")) == 0
-        assert _genus(make_shape("chair", [8, k], style="slatted")) >= 1
-        assert _genus(make_shape("chair", [8, k], style="armchair")) >= 2
-
-    def column(shape: CSGShape) -> bool:
-        lo, hi = shape.bounds
-        return bool(shape.sdf_numpy(np.array([[0.0, lo[1] + 0.25 * (hi[1] - lo[1]), 0.0]]))[0] < 0)
-
-    assert all(column(make_shape("chair", [8, k], style="swivel")) for k in range(4))
-    assert not any(column(make_shape("chair", [8, k], style="four_legs")) for k in range(4))
-
-
 def _inside(shape: CSGShape, x: float, y: float, z: float) -> bool:
     return bool(shape.sdf_numpy(np.array([[x, y, z]]))[0] < 0)
 
