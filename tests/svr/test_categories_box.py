@@ -57,7 +57,8 @@ def test_speaker_sweep():
     assert {r.base for r in recs} == set(speaker.BASES)
     assert {r.form for r in recs if r.style == "round"} == set(speaker.ROUND_FORMS)
     assert {r.port for r in recs} == {"none", "round", "slot"}
-    assert any(r.grille for r in recs) and any(r.side_firing for r in recs)
+    assert any(r.grille for r in recs)
+    assert {r.firing for r in recs if r.style == "subwoofer"} == {"front", "side", "bottom"}
     assert len({len(r.drivers) for r in recs}) >= 4
     assert np.ptp([r.cone_depth for r in recs]) > 0.3
 

@@ -38,7 +38,7 @@ class SpeakerParams:
     port: str               # "none", "round", "slot"
     port_y: float           # the port's height on the baffle
     grille: bool            # a cloth panel over the baffle, hiding the drivers
-    side_firing: bool       # subwoofer: the driver in the side, not the front
+    firing: str             # subwoofer: the driver in the "front", a "side" or the "bottom" (on feet)
     base: str
     base_height: float
     base_width: float       # stand: column width; plinth/strips: overhang
@@ -88,9 +88,12 @@ def sample(rng: np.random.Generator, style: str) -> SpeakerParams:
             "subwoofer": str(rng.choice(BASES, p=(0.3, 0.2, 0.2, 0.3, 0.0))),
             "soundbar": str(rng.choice(BASES, p=(0.6, 0.0, 0.4, 0.0, 0.0))),
             "round": "none"}[style]
+    firing = str(rng.choice(["front", "side", "bottom"], p=(0.5, 0.25, 0.25))) if style == "subwoofer" else "front"
+    if firing == "bottom" and base in ("none", "plinth"):
+        base = "spikes"
     stand = uniform(rng, 0.5, 1.3) if base == "stand" else 0.0  # stand height / enclosure height
     base_frac = {"none": 0.0, "plinth": uniform(rng, 0.02, 0.06), "strips": uniform(rng, 0.02, 0.05),
-                 "spikes": uniform(rng, 0.04, 0.12)}.get(base, 0.0)
+                 "spikes": uniform(rng, 0.04, 0.12) * (1.6 if firing == "bottom" else 1.0)}.get(base, 0.0)
     tall = h_w * (1 + stand + base_frac)
     s = 1.0 / max(1.0, tall, d_w)  # the longest side 1
     w, h, d = s, h_w * s, d_w * s
@@ -124,9 +127,9 @@ def sample(rng: np.random.Generator, style: str) -> SpeakerParams:
     port = str(rng.choice(["none", "round", "slot"], p=(0.5, 0.3, 0.2))) if style != "round" else "none"
     return SpeakerParams(
         style=style, width=w, height=h, depth=d, rounding=rounding, profile=profile, slant=slant,
-        drivers=drivers, cone_depth=uniform(rng, 0.2, 0.55), caps=chance(rng, 0.5), port=port,
+        drivers=drivers, cone_depth=uniform(rng, 0.2, 0.9), caps=chance(rng, 0.5), port=port,
         port_y=uniform(rng, 0.06, 0.2), grille=style in ("bookshelf", "tower", "soundbar") and chance(rng, 0.25),
-        side_firing=style == "subwoofer" and chance(rng, 0.3), base=base, base_height=base_height,
+        firing=firing, base=base, base_height=base_height,
         base_width=uniform(rng, 0.0, 0.06) if base != "stand" else uniform(rng, 0.07, 0.2),
         form=form, top=uniform(rng, 0.0, 0.4) if chance(rng, 0.6) else 0.0,
         taper=(uniform(rng, 0.55, 1.6) if chance(rng, 0.6) else 1.0) if form == "drum" else float(chance(rng, 0.6)),
@@ -184,10 +187,13 @@ def build(p: SpeakerParams) -> CSGShape:
     if p.style == "round":
         return _round(b, p)
     origin, normal, up = _box_body(b, p, y0)
-    if p.side_firing:
+    if p.firing != "front":
         rr = p.drivers[0][2]
         b.part("drivers")
-        _dish(b, (w / 2, y0 + h / 2, 0.0), (1, 0, 0), min(rr, 0.42 * d), p.cone_depth * rr)
+        if p.firing == "side":
+            _dish(b, (w / 2, y0 + h / 2, 0.0), (1, 0, 0), min(rr, 0.42 * d), min(p.cone_depth * rr, 0.6 * w))
+        else:
+            _dish(b, (0.0, y0, 0.0), (0, -1, 0), min(rr, 0.42 * d), min(p.cone_depth * rr, 0.6 * h))
     elif p.grille:
         b.part("grille")
         g = 0.04
