@@ -67,6 +67,8 @@ def test_display_sweep():
     recs = _records(display)
     assert {r.style for r in recs} == set(display.STYLES)
     assert {r.stand for r in recs if r.style == "monitor"} == set(display.FEET)
+    assert {r.stand for r in recs if r.style == "arm"} == {"clamp", "disc"}
+    assert np.ptp([r.arm for r in recs if r.style == "wall"]) > 0.3
     assert {r.stand for r in recs if r.style == "tv"} == set(display.TV_STANDS)
     assert {r.tube_round for r in recs if r.style == "crt"} == {True, False}
     assert any(r.housing[2] > 0 for r in recs) and any(r.housing[2] == 0 for r in recs)
@@ -122,10 +124,9 @@ def _genus(shape, n: int = 64) -> int:
 
 
 def test_holes_where_cabinets_and_displays_have_them():
-    """Open-backed shelves are through-holes; the monitor's two-prong foot and the tv's vee feet
-    close loops."""
+    """Open-backed shelves are through-holes, and so is a monitor neck's cable cut-out."""
     open_back = [k for k in range(40) if cabinet.sample(np.random.default_rng(k), "open_shelves").back == 0]
     p = cabinet.sample(np.random.default_rng(open_back[0]), "open_shelves")
     assert _genus(cabinet.build(p).normalized()) >= 1
-    p = dataclasses.replace(display.sample(np.random.default_rng(1), "tv"), stand="vees")
+    p = dataclasses.replace(display.sample(np.random.default_rng(1), "monitor"), arm=1.0, neck_width=0.18)
     assert _genus(display.build(p).normalized()) >= 1

@@ -1,11 +1,14 @@
-"""The procedural speaker: an enclosure with its drivers (conical dishes, 1-4, of drawn sizes and
-places) in the front baffle (-z). Box enclosures ("bookshelf": height/width 0.9-2, "tower": 2.3-5,
-"subwoofer": about a cube with one big driver, front- or side-firing, "soundbar": width 3-8 times
-the height) take a profile (square, a tapered back, a baffle sloped back by 6-25 degrees, or a
-curved back), a rounding, an optional port (round or slot) or a grille covering the drivers, and a
-base (none, a plinth, two foot strips, spikes, or for bookshelf speakers a stand of 0.5-1.3 times
-their height); "round" speakers are upright drums (radius/height 0.25-1.3, flat, domed or coned
-tops), lying cylinders with radiators at both ends, or orbs on a foot. Depth/width 0.5-2.
+"""The procedural speaker: an enclosure with drivers (conical dishes 0.2-0.9 of their radius deep,
+1-4 of drawn sizes and places) in its front baffle (-z). Box enclosures ("bookshelf": height/width
+0.9-2, depth/width 0.3-1.5, often on a stand 0.5-1.3 times its height; "tower": height/width
+2.3-5, maybe a hybrid whose upper 40-70% is a thin panel 0.055-0.14 thick; "subwoofer": about a
+cube, its one big driver firing front, side or down; "soundbar": height/width 0.12-0.33; "pa": a
+horn-topped cabinet on a tripod or the floor) take a profile (square, a back tapered or a baffle
+sloped by up to 40 degrees, a curved back, or for "pa" sides angled in), a rounding of 0-0.25, a
+port, a grille or a tweeter ball on top, and a base (none, plinth, foot strips, spikes, stand,
+tripod). "round" speakers are upright drums (height/diameter 0.4-2.5, tapering either way, a flat
+top with a top-firing driver or a coned one, maybe a carrying loop), lying cylinders or pills
+(length/diameter 1.5-4) with radiators at both ends, or orbs on a stem of 0.04-0.6 diameters.
 """
 from __future__ import annotations
 
@@ -15,11 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape
-from svr.data.procedural.categories.blocks import uniform, chance, frame, ALONG_X, X, Y
+from svr.data.procedural.categories.blocks import uniform, chance, bar, frame, ALONG_X, ALONG_Z, X, Y
 
-STYLES = ("bookshelf", "tower", "subwoofer", "soundbar", "round")
-PROFILES = ("square", "taper", "slope", "curved")
-BASES = ("none", "plinth", "strips", "spikes", "stand")
+STYLES = ("bookshelf", "tower", "subwoofer", "soundbar", "round", "pa")
+PROFILES = ("square", "taper", "slope", "curved", "trapezoid")
+BASES = ("none", "plinth", "strips", "spikes", "stand", "tripod")
 ROUND_FORMS = ("drum", "lying", "orb")
 
 
@@ -43,10 +46,14 @@ class SpeakerParams:
     base_height: float
     base_width: float       # stand: column width; plinth/strips: overhang
     form: str               # round: see ROUND_FORMS
+    panel_height: float     # tower: a thin panel radiator standing on the box; 0: none
+    panel_thick: float
+    pod: float              # a tweeter pod on top (bookshelf, tower): its radius; 0: none
     top: float              # round drum: the top's rise (0 flat, > 0 dome or cone)
     taper: float            # round drum: top radius / bottom radius; lying: 1 a cylinder, 0 a pill
     stalk: float            # round: the foot's height (orb: a stem) relative to the diameter
     foot: float             # round: the foot's radius relative to the body's
+    handle: bool            # round drum: a carrying loop on the top
 
 
 # ---------------------------------------------------------------------------------------------
@@ -78,23 +85,24 @@ def _drivers_column(rng: np.random.Generator, w: float, h: float, n_max: int) ->
 def sample(rng: np.random.Generator, style: str) -> SpeakerParams:
     if style not in STYLES:
         raise ValueError(f"style must be one of {STYLES}, got {style!r}")
-    h_w, d_w = {"bookshelf": (uniform(rng, 0.9, 2.0), uniform(rng, 0.5, 1.5)),
+    h_w, d_w = {"bookshelf": (uniform(rng, 0.9, 2.0), uniform(rng, 0.3, 1.5)),
                 "tower": (uniform(rng, 2.3, 5.0), uniform(rng, 0.8, 2.0)),
-                "subwoofer": (uniform(rng, 0.75, 1.35), uniform(rng, 0.75, 1.35)),
+                "subwoofer": (uniform(rng, 0.6, 1.4), uniform(rng, 0.5, 1.5)),
                 "soundbar": (uniform(rng, 0.12, 0.33), uniform(rng, 0.12, 0.4)),
-                "round": (1.0, 1.0)}[style]
-    base = {"bookshelf": str(rng.choice(BASES, p=(0.35, 0.15, 0.15, 0.05, 0.3))),
-            "tower": str(rng.choice(BASES, p=(0.2, 0.35, 0.2, 0.25, 0.0))),
-            "subwoofer": str(rng.choice(BASES, p=(0.3, 0.2, 0.2, 0.3, 0.0))),
-            "soundbar": str(rng.choice(BASES, p=(0.6, 0.0, 0.4, 0.0, 0.0))),
-            "round": "none"}[style]
+                "round": (1.0, 1.0), "pa": (uniform(rng, 1.2, 2.0), uniform(rng, 0.7, 1.3))}[style]
+    base = {"bookshelf": str(rng.choice(BASES, p=(0.25, 0.1, 0.15, 0.05, 0.45, 0.0))),
+            "tower": str(rng.choice(BASES, p=(0.2, 0.35, 0.2, 0.25, 0.0, 0.0))),
+            "subwoofer": str(rng.choice(BASES, p=(0.3, 0.2, 0.2, 0.3, 0.0, 0.0))),
+            "soundbar": str(rng.choice(BASES, p=(0.6, 0.0, 0.4, 0.0, 0.0, 0.0))),
+            "round": "none", "pa": str(rng.choice(BASES, p=(0.3, 0.0, 0.2, 0.0, 0.0, 0.5)))}[style]
     firing = str(rng.choice(["front", "side", "bottom"], p=(0.5, 0.25, 0.25))) if style == "subwoofer" else "front"
     if firing == "bottom" and base in ("none", "plinth"):
         base = "spikes"
-    stand = uniform(rng, 0.5, 1.3) if base == "stand" else 0.0  # stand height / enclosure height
+    stand = uniform(rng, 0.5, 1.3) if base in ("stand", "tripod") else 0.0  # stand height / enclosure height
     base_frac = {"none": 0.0, "plinth": uniform(rng, 0.02, 0.06), "strips": uniform(rng, 0.02, 0.05),
                  "spikes": uniform(rng, 0.04, 0.12) * (1.6 if firing == "bottom" else 1.0)}.get(base, 0.0)
-    tall = h_w * (1 + stand + base_frac)
+    pod = uniform(rng, 0.3, 0.5) if style in ("bookshelf", "tower") and chance(rng, 0.25) else 0.0
+    tall = h_w * (1 + stand + base_frac) + 1.8 * pod
     s = 1.0 / max(1.0, tall, d_w)  # the longest side 1
     w, h, d = s, h_w * s, d_w * s
     base_height = max(stand * h, base_frac * h, 0.055) if base != "none" else 0.0
@@ -103,9 +111,13 @@ def sample(rng: np.random.Generator, style: str) -> SpeakerParams:
         ratio = uniform(rng, 0.4, 2.5) if form == "drum" else uniform(rng, 1.5, 4.0)
         w = d = uniform(rng, 0.6, 0.95) if form == "orb" else min(0.9, 0.85 / ratio)
         h = w if form == "orb" else w * ratio
-    profile = str(rng.choice(PROFILES, p=(0.4, 0.2, 0.2, 0.2))) if style != "round" else "square"
-    slant = uniform(rng, 0.1, 0.45)
-    rounding = min(uniform(rng, 0.0, 0.06), 0.3 * min(w, h, d))
+    panel_h = h * uniform(rng, 0.4, 0.7) if style == "tower" and pod == 0 and chance(rng, 0.35) else 0.0
+    h -= panel_h  # a hybrid: a thin panel over a bass box
+    profile = "square" if style == "round" else str(rng.choice(PROFILES, p=(0.25, 0.2, 0.3, 0.25, 0.0)))
+    if style == "pa":
+        profile = str(rng.choice(["trapezoid", "slope", "square"], p=(0.5, 0.3, 0.2)))
+    slant = uniform(rng, 0.1, 0.9)
+    rounding = min(uniform(rng, 0.0, 0.06) if chance(rng, 0.7) else uniform(rng, 0.1, 0.25), 0.4 * min(w, h, d))
     if style == "soundbar":
         rounding = min(uniform(rng, 0.01, 0.5), 0.49) * min(h, d)
     # drivers on the baffle (y from the enclosure's bottom)
@@ -123,18 +135,21 @@ def sample(rng: np.random.Generator, style: str) -> SpeakerParams:
         if form == "drum" and h > 2.2 * w and chance(rng, 0.7):
             drivers = ((0.0, h * 0.3, r), (0.0, h * 0.7, r))
     else:
-        drivers = _drivers_column(rng, w, h, 1 if style == "bookshelf" else 4)
+        drivers = _drivers_column(rng, w, h, {"bookshelf": 1, "pa": 2}.get(style, 4))
+        if panel_h > 0:
+            drivers = ((0.0, h / 2, min(0.38 * w, 0.35 * h)),)
     port = str(rng.choice(["none", "round", "slot"], p=(0.5, 0.3, 0.2))) if style != "round" else "none"
     return SpeakerParams(
         style=style, width=w, height=h, depth=d, rounding=rounding, profile=profile, slant=slant,
         drivers=drivers, cone_depth=uniform(rng, 0.2, 0.9), caps=chance(rng, 0.5), port=port,
         port_y=uniform(rng, 0.06, 0.2), grille=style in ("bookshelf", "tower", "soundbar") and chance(rng, 0.25),
-        firing=firing, base=base, base_height=base_height,
-        base_width=uniform(rng, 0.0, 0.06) if base != "stand" else uniform(rng, 0.07, 0.2),
-        form=form, top=uniform(rng, 0.0, 0.4) if chance(rng, 0.6) else 0.0,
+        firing=firing, base=base,
+        pod=pod * w, panel_height=panel_h, panel_thick=uniform(rng, 0.055, 0.14), base_height=base_height,
+        base_width=uniform(rng, 0.07, 0.2) if base == "stand" else uniform(rng, 0.0, 0.06),
+        form=form, top=uniform(rng, 0.0, 0.4) if chance(rng, 0.5) else 0.0,
         taper=(uniform(rng, 0.55, 1.6) if chance(rng, 0.6) else 1.0) if form == "drum" else float(chance(rng, 0.6)),
         stalk=uniform(rng, 0.04, 0.6) if form == "orb" else uniform(rng, 0.0, 0.2),
-        foot=uniform(rng, 0.35, 0.95))
+        foot=uniform(rng, 0.35, 0.95), handle=form == "drum" and chance(rng, 0.3))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -161,7 +176,7 @@ def _box_body(b: CSGBuilder, p: SpeakerParams, y0: float) -> tuple:
     origin = np.array([0.0, y0, zf])
     big = 1.0
     if p.profile == "slope":  # the baffle leans back: cut the front along a plane through its bottom edge
-        a = min(p.slant, math.atan(0.7 * d / h))
+        a = min(p.slant, math.atan(0.75 * d / h))
         up = np.array([0.0, math.cos(a), math.sin(a)])
         normal = np.array([0.0, math.sin(a), -math.cos(a)])
         centre = origin + up * h / 2 + normal * big / 2
@@ -172,6 +187,12 @@ def _box_body(b: CSGBuilder, p: SpeakerParams, y0: float) -> tuple:
         nb = np.array([0.0, math.sin(a), math.cos(a)])
         centre = np.array([0.0, y0, zb]) + upb * h / 2 + nb * big / 2
         b.box(centre, (w, h, big / 2), frame(upb, X), op="subtract")
+    elif p.profile == "trapezoid":  # the sides angle in towards the back
+        a = min(p.slant * 0.5, math.atan(0.3 * w / d))
+        for sx in (-1, 1):
+            side = np.array([sx * math.cos(a), 0.0, math.sin(a)])
+            centre = np.array([sx * w / 2, y0 + h / 2, zf]) + side * big / 2 + np.array([-sx * math.sin(a), 0, math.cos(a)]) * d / 2
+            b.box(centre, (big / 2, h, d), frame((0, 1, 0), side), op="subtract")
     elif p.profile == "curved":  # a rounded back: the body cut to a cylinder through the front corners
         depth_c = d * 0.98
         r = ((w / 2) ** 2 + depth_c ** 2) / (2 * depth_c)
@@ -213,6 +234,23 @@ def build(p: SpeakerParams) -> CSGShape:
             for x, y, r in p.drivers:
                 if r > 0.1:
                     b.sphere(origin + up * y + np.array([x, 0, 0]) - normal * (p.cone_depth * r * 0.7), 0.3 * r)
+    if p.panel_height > 0:  # a thin panel in a frame on the box, leaning back a little
+        b.part("panel")
+        a = 0.15 * p.slant
+        up = np.array([0.0, math.cos(a), math.sin(a)])
+        c = np.array([0.0, y0 + h - 0.02, 0.0]) + up * (p.panel_height / 2 + 0.02)
+        b.box(c, (w / 2 * 0.95, p.panel_height / 2 + 0.02, p.panel_thick / 2), frame(up, X), rounding=0.015)
+    if p.pod > 0:  # a ball on the top, its tweeter to the front
+        b.part("pod")
+        yc = y0 + h + p.pod * 0.8
+        z0, z1 = -d / 2, d / 2  # the top that the profile leaves
+        if p.profile == "slope":
+            z0 += h * math.tan(min(p.slant, math.atan(0.75 * d / h)))
+        elif p.profile == "taper":
+            z1 -= h * math.tan(min(p.slant, math.atan(0.6 * d / h)))
+        zc = (z0 + z1) / 2
+        b.sphere((0, yc, zc), p.pod)
+        _dish(b, (0, yc, zc - p.pod + 0.01), (0, 0, -1), 0.5 * p.pod, 0.3 * p.pod)
     if p.base != "none":
         b.part("base")
         o = p.base_width
@@ -226,7 +264,15 @@ def build(p: SpeakerParams) -> CSGShape:
         elif p.base == "spikes":  # cones at the corners, points down
             for sx in (-1, 1):
                 for sz in (-1, 1):
-                    b.cone((sx * (w / 2 - 0.05), bh / 2, sz * (d / 2 - 0.05)), bh / 2, 0.015, 0.04)
+                    k = 0.5 if p.profile == "curved" else 1.0
+                    ins = max(0.05, p.rounding + 0.03)
+                    b.cone((sx * k * (w / 2 - ins), bh / 2, sz * k * (d / 2 - ins)), bh / 2, 0.015, 0.04)
+        elif p.base == "tripod":  # a pole in a socket under the box, on three legs
+            b.cylinder((0, y0 / 2 + 0.02, 0), 0.0285, y0 / 2 + 0.02)
+            for k in range(3):
+                ang = 2 * math.pi * k / 3 + math.pi / 2
+                foot = np.array([math.cos(ang), 0, math.sin(ang)]) * min(0.45 * y0 + 0.1, 0.5)
+                bar(b, (0, y0 * 0.4, 0), foot + np.array([0, 0.0275, 0]), 0.055, 0.055)
         else:  # stand: a top plate, a column, a foot plate
             cw = max(p.base_width, 0.055)
             b.box((0, y0 - 0.0275, 0), (w / 2 * 0.9, 0.0275, d / 2 * 0.9))
@@ -266,12 +312,18 @@ def _round(b: CSGBuilder, p: SpeakerParams) -> CSGShape:
     y0 = 0.055 + p.stalk * w * 0.5
     rb, rt = (r, r * p.taper) if p.taper <= 1 else (r / p.taper, r)
     b.cone((0, y0 + h / 2, 0), h / 2, rb, rt)
-    if p.top > 0:
-        b.cone((0, y0 + h + p.top * rt / 2, 0), max(p.top * rt / 2, 0.0275), rt, rt * (1 - p.top))
     b.part("drivers")
+    if p.top > 0:
+        b.part("body")
+        b.cone((0, y0 + h + p.top * rt / 2, 0), max(p.top * rt / 2, 0.0275), rt, rt * (1 - p.top))
+    else:  # a flat top with a top-firing driver
+        _dish(b, (0, y0 + h, 0), (0, 1, 0), 0.6 * rt, p.cone_depth * rt * 0.4)
     for x, y, dr in p.drivers:
         ry = rb + (rt - rb) * y / h  # the body's radius there
         _dish(b, (0, y0 + y, -ry), (0, 0, -1), min(dr, 0.4 * h, 0.8 * ry), p.cone_depth * dr)
+    if p.handle:  # a carrying loop over the top
+        b.part("handle")
+        b.torus((0, y0 + h + (p.top * rt / 2 if p.top > 0 else 0.0), 0), 0.6 * rt, 0.0285, ALONG_Z)
     b.part("base")
     b.cylinder((0, y0 / 2, 0), rb * p.foot, y0 / 2 + 0.01)
     return b.shape()
