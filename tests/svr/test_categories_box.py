@@ -74,7 +74,7 @@ def test_display_sweep():
     assert any(r.housing[2] > 0 for r in recs) and any(r.housing[2] == 0 for r in recs)
     assert any(r.soundbar for r in recs)
     thick = [r.thick for r in recs if r.style != "crt"]
-    assert min(thick) < 0.06 and max(thick) > 0.11
+    assert min(thick) < 0.075 and max(thick) > 0.12
     tilt = [r.tilt for r in recs]
     assert min(tilt) < -0.1 and max(tilt) > 0.3
 

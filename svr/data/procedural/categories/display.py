@@ -58,6 +58,8 @@ def sample(rng: np.random.Generator, style: str) -> DisplayParams:
     h = w / aspect
     thick = {"monitor": uniform(rng, 0.055, 0.13), "arm": uniform(rng, 0.055, 0.12), "tv": uniform(rng, 0.055, 0.1), "wall": uniform(rng, 0.055, 0.09),
              "crt": uniform(rng, 0.08, 0.3)}[style]
+    recess = uniform(rng, 0.01, 0.03)
+    thick += recess  # the panel behind the screen at least 0.055 thick
     housing = (0.0, 0.0, 0.0)
     if style != "crt" and chance(rng, 0.5):
         housing = (uniform(rng, 0.3, 0.9), uniform(rng, 0.3, 0.8), uniform(rng, 0.055, 0.16))
@@ -74,7 +76,7 @@ def sample(rng: np.random.Generator, style: str) -> DisplayParams:
         tilt={"monitor": uniform(rng, 0.0, 0.35), "arm": uniform(rng, -0.15, 0.35), "crt": uniform(rng, 0.0, 0.12), "tv": uniform(rng, 0.0, 0.1),
               "wall": uniform(rng, -0.2, 0.25)}[style],
         bezel=uniform(rng, 0.02, 0.07), chin=uniform(rng, 0.0, 0.1) if chance(rng, 0.5) else 0.0,
-        recess=uniform(rng, 0.01, 0.03), housing=housing, lift=lift, stand=stand,
+        recess=recess, housing=housing, lift=lift, stand=stand,
         neck_width=uniform(rng, 0.07, 0.2), lean=uniform(rng, 0.0, 0.4) if chance(rng, 0.6) else 0.0,
         foot=(uniform(rng, 0.12, 0.35), uniform(rng, 0.08, 0.22)), spread=uniform(rng, 0.45, 0.9),
         soundbar=style in ("wall", "tv") and chance(rng, 0.3),
