@@ -101,8 +101,8 @@ def sample(rng: np.random.Generator, style: str) -> LampParams:
             shade = ("dome", "cone")[int(rng.integers(2))]
         shade_h, shade_rb = uniform(rng, 0.1, 0.3), uniform(rng, 0.1, 0.24)
         if shade == "bowl":
-            shade_rt, shade_rb = shade_rb * uniform(rng, 1.0, 1.3), shade_rb * uniform(rng, 0.3, 0.6)
-            shade_h = uniform(rng, 0.08, 0.18)
+            shade_rt = shade_rb * uniform(rng, 1.0, 1.3)  # the mouth
+            shade_rb, shade_h = shade_rt * uniform(rng, 0.5, 0.75), uniform(rng, 0.12, 0.2)
     elif style == "hanging":
         height = uniform(rng, 0.45, 1.0)
         shade_h, shade_rb = uniform(rng, 0.08, 0.3), uniform(rng, 0.12, 0.3)
@@ -176,10 +176,11 @@ def _base(b: CSGBuilder, p: LampParams, x: float, z: float, r: float, h: float) 
     if p.base == "square":
         b.box((x, h / 2, z), (r * 0.9, h / 2, r * 0.9), rotation(Y, p.angle), rounding=0.01)
         return h
-    if p.base == "dome":
-        hh = max(h, 0.4 * r)
-        b.cone((x, hh / 2, z), hh / 2, r, max(R + 0.01, 0.3 * r))
-        return hh
+    if p.base == "dome":  # a low cone on a plinth (a bare cone would end in a knife-thin rim)
+        hp, hh = T + 0.005, max(h, 0.4 * r)
+        b.cylinder((x, hp / 2, z), r, hp / 2)
+        b.cone((x, hp + hh / 2 - 0.005, z), hh / 2, r * 0.9, max(R + 0.01, 0.3 * r))
+        return hp + hh - 0.01
     # feet: a cross of four or a tripod of three, sloping up to a hub
     n = 4 if p.base == "cross" else 3
     hub = h + 0.05
@@ -287,8 +288,7 @@ def _floor(b: CSGBuilder, p: LampParams) -> None:
         d = np.array([math.cos(a), 0.0, math.sin(a)])
         tip = np.array([0.0, y + 0.1, 0.0]) + d * 0.22
         b.part("shade")
-        _shade(b, "cone", tip + d * 0.04 + np.array([0, -0.12, 0]), (d[0] * 0.5, -1, d[2] * 0.5), 0.1, 0.07, 0.045,
-               p.wall, closed_top=True)
+        b.cone(tip + d * 0.03 + np.array([0, -0.06, 0]), 0.05, 0.07, 0.035, frame((-d[0] * 0.5, 1, -d[2] * 0.5)))
         b.part("pole")
         b.rod((0.0, y, 0.0), tip, R + 0.003)
 
