@@ -27,7 +27,6 @@ from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.outputs import write_png
 from sdfcommon.tooling.pictures import labelled_grid
 from svr.evaluation.baselines import LABELS, score_baselines
-from svr.evaluation.metrics import iou_table
 from svr.evaluation.tables import EvaluationResult
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import uniform, chance, cut_beyond, X, Y, Z, ALONG_X, ALONG_Z
+from svr.data.procedural.categories.blocks import uniform, chance, cut_beyond, X, Y, Z, ALONG_Z
 
 STYLES = ("ship", "sailboat", "speedboat", "rowboat", "tanker", "submarine")
 CARGO = ("none", "containers", "hatches", "pipes")
