@@ -4,8 +4,8 @@
                                   [--view 3] [--seed 0] [--out docs/procedural_categories.png]
 
 Object j of a row is ``make_shape(category, [seed, j], style=styles[j % len(styles)])``, so a
-row shows every style once before it repeats one. Each object is rendered like the dataset
-(``svr.data.procedural.generator.render_shape``, at 128 px) from one NMR view (3 by default: azimuth -45
+row shows every style once before it repeats one. Each object is rendered like the dataset, in its
+own colours (``svr.data.procedural.generator.render_shape``, at 128 px) from one NMR view (3 by default: azimuth -45
 degrees, a three-quarter view of the front). Prints the path of the PNG.
 """
 from __future__ import annotations
@@ -21,6 +21,7 @@ sys.path.insert(0, str(REPO))
 from sdfcommon.tooling.checks import check_int  # noqa: E402
 from sdfcommon.tooling.outputs import atomic_write  # noqa: E402
 from svr.data.procedural.categories import NMR_PROCEDURAL_CATEGORIES, make_shape, procedural_category  # noqa: E402
+from svr.data.procedural.appearance import colour_rng, draw_colours  # noqa: E402
 from svr.data.procedural.generator import render_shape  # noqa: E402
 
 DEFAULT_OUT = REPO / "docs" / "procedural_categories.png"
@@ -56,7 +57,8 @@ def category_sheet(out: str | Path = DEFAULT_OUT, categories: Optional[Sequence[
         for j, ax in enumerate(row):
             style = cat.styles[j % len(cat.styles)]
             shape = make_shape(cat.category_id, [seed, j], style=style)
-            rgba = render_shape(shape, image_size=IMAGE_SIZE, num_views=view + 1)[view]
+            colours = draw_colours(colour_rng([seed, j]), shape.parts)
+            rgba = render_shape(shape, colours, image_size=IMAGE_SIZE, num_views=view + 1)[view]
             ax.imshow(rgba[:3].transpose(1, 2, 0))
             ax.set_title(style, fontsize=8, pad=2)
             ax.set_xticks([])
