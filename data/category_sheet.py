@@ -57,7 +57,7 @@ def category_sheet(out: str | Path = DEFAULT_OUT, categories: Optional[Sequence[
         for j, ax in enumerate(row):
             style = cat.styles[j % len(cat.styles)]
             shape = make_shape(cat.category_id, [seed, j], style=style)
-            colours = draw_colours(colour_rng([seed, j]), shape.parts)
+            colours = draw_colours(colour_rng([seed, j, int(cat.category_id)]), shape.parts)
             rgba = render_shape(shape, colours, image_size=IMAGE_SIZE, num_views=view + 1)[view]
             ax.imshow(rgba[:3].transpose(1, 2, 0))
             ax.set_title(style, fontsize=8, pad=2)
