@@ -11,6 +11,8 @@ from scipy import ndimage
 from svr.data.procedural.categories import cabinet, display, make_shape, speaker, style_of
 from svr.data.procedural.generator import voxelize_shape
 
+from .test_categories import _genus
+
 MODULES = {"cabinet": cabinet, "speaker": speaker, "display": display}
 
 
@@ -111,16 +113,6 @@ def test_objects_are_one_solid_with_parts(name):
 def test_display_screens_are_their_own_part():
     for k in range(6):
         assert "screen" in make_shape("display", [23, k]).parts
-
-
-def _genus(shape, n: int = 64) -> int:
-    import torch
-    from sdfcommon.numerics.meshing import sdf_to_mesh
-
-    ax = np.linspace(-0.56, 0.56, n)
-    values = torch.from_numpy(np.ascontiguousarray(shape.sdf_numpy(np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1))))
-    parts = sdf_to_mesh(values, -0.56, 0.56).split(only_watertight=False)
-    return sum(int(round((2 - p.euler_number) / 2)) for p in parts)
 
 
 def test_holes_where_cabinets_and_displays_have_them():

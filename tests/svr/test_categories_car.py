@@ -13,6 +13,8 @@ from svr.data.procedural.categories import car, make_shape, phone
 from svr.data.procedural.csg import CSGShape
 from svr.data.procedural.generator import voxelize_shape
 
+from .test_categories import _genus
+
 SEEDS = 200
 
 
@@ -36,17 +38,6 @@ def _top_at(shape: CSGShape, x: float, z: float) -> float:
 
 def _components(shape: CSGShape) -> int:
     return int(ndimage.label(voxelize_shape(shape, rule="protocol"), structure=np.ones((3, 3, 3)))[1])
-
-
-def _genus(shape: CSGShape, n: int = 64) -> int:
-    import torch
-    from sdfcommon.numerics.meshing import sdf_to_mesh
-
-    ax = np.linspace(-0.56, 0.56, n)
-    grid = np.stack(np.meshgrid(ax, ax, ax, indexing="ij"), -1)
-    values = torch.from_numpy(np.ascontiguousarray(shape.sdf_numpy(grid)))
-    parts = sdf_to_mesh(values, -0.56, 0.56).split(only_watertight=False)
-    return sum(int(round((2 - p.euler_number) / 2)) for p in parts)
 
 
 def _extent(shape: CSGShape) -> np.ndarray:

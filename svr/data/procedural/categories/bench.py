@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import ALONG_X, MIN_PART, X, bar, chance, uniform
+from svr.data.procedural.categories.blocks import pick, ALONG_X, MIN_PART, X, bar, chance, uniform
 
 STYLES = ("park", "panel", "backless", "rail_back")
 SUPPORTS = ("legs", "aframe", "trestle", "sled", "panel", "block", "frame")
@@ -56,11 +56,6 @@ class BenchParams:
     arm_h: float
 
 
-def _pick(rng: np.random.Generator, options, weights=None) -> str:
-    p = None if weights is None else np.asarray(weights, float) / np.sum(weights)
-    return str(options[int(rng.choice(len(options), p=p))])
-
-
 def sample(rng: np.random.Generator, style: str) -> BenchParams:
     if style not in STYLES:
         raise ValueError(f"style must be one of {STYLES}, got {style!r}")
@@ -68,14 +63,14 @@ def sample(rng: np.random.Generator, style: str) -> BenchParams:
     depth = length * uniform(rng, 0.2, 0.46)
     seat_h = length * uniform(rng, 0.25, 0.5)
     support = {"park": "frame", "panel": "panel",
-               "backless": _pick(rng, ("legs", "aframe", "trestle", "sled", "panel", "block"),
+               "backless": pick(rng, ("legs", "aframe", "trestle", "sled", "panel", "block"),
                                  (0.35, 0.13, 0.13, 0.13, 0.13, 0.13)),
                "rail_back": "legs"}[style]
     slatted = style == "park" or (support in ("trestle", "panel", "block") and chance(rng, 0.4))
-    back = {"park": "slats", "panel": _pick(rng, ("none", "panel"), (0.45, 0.55)), "backless": "none",
+    back = {"park": "slats", "panel": pick(rng, ("none", "panel"), (0.45, 0.55)), "backless": "none",
             "rail_back": "rails"}[style]
-    arms = {"park": _pick(rng, ("none", "open"), (0.4, 0.6)), "panel": _pick(rng, ("none", "panel"), (0.5, 0.5)),
-            "rail_back": _pick(rng, ("none", "open"), (0.7, 0.3))}.get(style, "none")
+    arms = {"park": pick(rng, ("none", "open"), (0.4, 0.6)), "panel": pick(rng, ("none", "panel"), (0.5, 0.5)),
+            "rail_back": pick(rng, ("none", "open"), (0.7, 0.3))}.get(style, "none")
     seat_t = uniform(rng, MIN_PART, 0.14)
     back_h = min(uniform(rng, 0.12, 0.42), 0.98 - seat_h - seat_t)
     arm_h = uniform(rng, 0.1, 0.26) if back == "none" else back_h * uniform(rng, 0.4, 0.8)
@@ -84,8 +79,8 @@ def sample(rng: np.random.Generator, style: str) -> BenchParams:
         slats=int(rng.integers(2, 5 if style == "park" else 6)) if slatted else 0,
         slat_gap=uniform(rng, 0.035, 0.07), support=support,
         n_supports=3 if chance(rng, 0.08) else 2, inset=uniform(rng, 0.0, 0.18),
-        leg=_pick(rng, LEGS), leg_t=uniform(rng, MIN_PART, 0.11), splay=uniform(rng, 0.02, 0.1),
-        block_w=uniform(rng, 0.08, 0.3), cut=_pick(rng, CUTS), cut_margin=uniform(rng, MIN_PART, 0.1),
+        leg=pick(rng, LEGS), leg_t=uniform(rng, MIN_PART, 0.11), splay=uniform(rng, 0.02, 0.1),
+        block_w=uniform(rng, 0.08, 0.3), cut=pick(rng, CUTS), cut_margin=uniform(rng, MIN_PART, 0.1),
         stretcher=chance(rng, 0.25),
         stretcher_y=uniform(rng, 0.15, 0.55), back=back, back_h=back_h,
         back_tilt=uniform(rng, 0.0, 0.35), back_n=int(rng.integers(1, 4 if style == "park" else 5)),

@@ -39,6 +39,12 @@ def chance(rng: np.random.Generator, p: float) -> bool:
     return bool(rng.random() < p)
 
 
+def pick(rng: np.random.Generator, options: Sequence, weights: Sequence[float] | None = None) -> str:
+    """One of ``options`` (as a string), uniformly or by relative ``weights``."""
+    p = None if weights is None else np.asarray(weights, float) / np.sum(weights)
+    return str(options[int(rng.choice(len(options), p=p))])
+
+
 def frame(y_dir: Sequence[float], x_hint: Sequence[float] = X) -> np.ndarray:
     """(3, 3) rotation (local -> world) whose local y is ``y_dir`` and whose local x is ``x_hint``
     made orthogonal to it, so that boxes keep a chosen roll (``csg.frame_with_y`` picks any)."""

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import MIN_PART, X, Y, bar, chance, uniform
+from svr.data.procedural.categories.blocks import pick, MIN_PART, X, Y, bar, chance, uniform
 
 STYLES = ("four_legs", "slatted", "armchair", "swivel", "cantilever", "barstool")
 SEATS = ("box", "rounded", "round")
@@ -69,15 +69,10 @@ class ChairParams:
     arm_len: float       # fraction of the seat's depth
 
 
-def _pick(rng: np.random.Generator, options, weights=None) -> str:
-    p = None if weights is None else np.asarray(weights, float) / np.sum(weights)
-    return str(options[int(rng.choice(len(options), p=p))])
-
-
 def sample(rng: np.random.Generator, style: str) -> ChairParams:
     if style not in STYLES:
         raise ValueError(f"style must be one of {STYLES}, got {style!r}")
-    seat = _pick(rng, SEATS, (0.5, 0.35, 0.15) if style != "barstool" else (0.25, 0.25, 0.5))
+    seat = pick(rng, SEATS, (0.5, 0.35, 0.15) if style != "barstool" else (0.25, 0.25, 0.5))
     sw, sd = uniform(rng, 0.36, 0.78), uniform(rng, 0.34, 0.66)
     if style == "barstool":
         sw, sd = uniform(rng, 0.3, 0.5), uniform(rng, 0.3, 0.5)
@@ -91,32 +86,32 @@ def sample(rng: np.random.Generator, style: str) -> ChairParams:
         sh = uniform(rng, 0.16, 0.46)
     cushion = uniform(rng, MIN_PART, 0.11) if chance(rng, 0.55 if style == "armchair" else 0.2) else 0.0
     base = {"four_legs": "legs", "slatted": "legs", "cantilever": "cantilever",
-            "armchair": _pick(rng, ("legs", "sled", "block"), (0.55, 0.2, 0.25)),
-            "swivel": _pick(rng, ("star", "disk"), (0.75, 0.25)),
-            "barstool": _pick(rng, ("legs", "disk"), (0.65, 0.35))}[style]
-    leg = _pick(rng, LEGS)
+            "armchair": pick(rng, ("legs", "sled", "block"), (0.55, 0.2, 0.25)),
+            "swivel": pick(rng, ("star", "disk"), (0.75, 0.25)),
+            "barstool": pick(rng, ("legs", "disk"), (0.65, 0.35))}[style]
+    leg = pick(rng, LEGS)
     leg_t = uniform(rng, MIN_PART, 0.1)
-    stretcher = _pick(rng, STRETCHERS, (0.5, 0.25, 0.15, 0.1) if style != "barstool" else (0.1, 0.2, 0.2, 0.5))
+    stretcher = pick(rng, STRETCHERS, (0.5, 0.25, 0.15, 0.1) if style != "barstool" else (0.1, 0.2, 0.2, 0.5))
     # the back
     if style == "four_legs":
-        back = _pick(rng, ("solid", "framed", "pierced", "shell"), (0.4, 0.2, 0.2, 0.2))
+        back = pick(rng, ("solid", "framed", "pierced", "shell"), (0.4, 0.2, 0.2, 0.2))
     elif style == "slatted":
-        back = _pick(rng, ("slats", "spindles", "ladder"))
+        back = pick(rng, ("slats", "spindles", "ladder"))
     elif style == "barstool":
-        back = _pick(rng, ("none", "solid", "framed", "ladder"), (0.5, 0.2, 0.15, 0.15))
+        back = pick(rng, ("none", "solid", "framed", "ladder"), (0.5, 0.2, 0.15, 0.15))
     elif style == "armchair":
-        back = _pick(rng, ("solid", "shell", "slats", "ladder"), (0.45, 0.25, 0.15, 0.15))
+        back = pick(rng, ("solid", "shell", "slats", "ladder"), (0.45, 0.25, 0.15, 0.15))
     elif style == "swivel":
-        back = _pick(rng, ("solid", "framed", "pierced"), (0.6, 0.2, 0.2))
+        back = pick(rng, ("solid", "framed", "pierced"), (0.6, 0.2, 0.2))
     else:
-        back = _pick(rng, ("solid", "framed", "slats", "ladder"), (0.5, 0.2, 0.15, 0.15))
+        back = pick(rng, ("solid", "framed", "slats", "ladder"), (0.5, 0.2, 0.15, 0.15))
     back_h = uniform(rng, 0.12, 0.3) if style == "barstool" else uniform(rng, 0.18, 0.62)
     n_back = {"slats": int(rng.integers(1, 7)), "spindles": int(rng.integers(2, 7)),
               "ladder": int(rng.integers(1, 5))}.get(back, 0)
-    arms = {"armchair": _pick(rng, ("open", "panel"), (0.55, 0.45)),
-            "swivel": _pick(rng, ("none", "open"), (0.45, 0.55)),
-            "four_legs": _pick(rng, ("none", "open"), (0.85, 0.15)),
-            "cantilever": _pick(rng, ("none", "open"), (0.75, 0.25))}.get(style, "none")
+    arms = {"armchair": pick(rng, ("open", "panel"), (0.55, 0.45)),
+            "swivel": pick(rng, ("none", "open"), (0.45, 0.55)),
+            "four_legs": pick(rng, ("none", "open"), (0.85, 0.15)),
+            "cantilever": pick(rng, ("none", "open"), (0.75, 0.25))}.get(style, "none")
     p = dict(style=style, seat=seat, seat_w=sw, seat_d=sd, seat_t=st, seat_h=sh,
              seat_round=uniform(rng, 0.0, 0.06), cushion_t=cushion, base=base, leg=leg, leg_t=leg_t,
              leg_inset=uniform(rng, 0.0, 0.06), splay=uniform(rng, 0.03, 0.12), stretcher=stretcher,

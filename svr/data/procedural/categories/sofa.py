@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import MIN_PART, X, chance, uniform
+from svr.data.procedural.categories.blocks import pick, MIN_PART, X, chance, uniform
 
 STYLES = ("straight", "sectional", "armless", "loveseat", "chaise", "curved")
 LEGS = ("plinth", "straight", "round", "tapered")
@@ -59,11 +59,6 @@ class SofaParams:
     curve: float         # a curved sofa keeps the part of its disk with z > curve * radius
 
 
-def _pick(rng: np.random.Generator, options, weights=None) -> str:
-    p = None if weights is None else np.asarray(weights, float) / np.sum(weights)
-    return str(options[int(rng.choice(len(options), p=p))])
-
-
 def sample(rng: np.random.Generator, style: str) -> SofaParams:
     if style not in STYLES:
         raise ValueError(f"style must be one of {STYLES}, got {style!r}")
@@ -72,7 +67,7 @@ def sample(rng: np.random.Generator, style: str) -> SofaParams:
     depth = uniform(rng, 0.4, 0.75) if style in ("loveseat", "chaise") else uniform(rng, 0.3, 0.7)
     if style == "sectional":
         depth = uniform(rng, 0.3, 0.6)
-    leg = _pick(rng, LEGS, (0.3, 0.3, 0.2, 0.2) if style != "armless" else (0.1, 0.3, 0.3, 0.3))
+    leg = pick(rng, LEGS, (0.3, 0.3, 0.2, 0.2) if style != "armless" else (0.1, 0.3, 0.3, 0.3))
     leg_h = 0.0 if leg == "plinth" else (uniform(rng, 0.07, 0.28) if style == "armless"
                                          else uniform(rng, MIN_PART - 0.005, 0.25))
     side = 1 if chance(rng, 0.5) else -1
@@ -94,9 +89,9 @@ def sample(rng: np.random.Generator, style: str) -> SofaParams:
         leg=leg, leg_h=leg_h, leg_t=uniform(rng, MIN_PART, 0.1), legs_per_side=int(rng.integers(2, 4)),
         leg_inset=uniform(rng, 0.0, 0.08), n_seats=n_seats,
         cushion_t=cushion_t,
-        back=_pick(rng, BACKS, (0.5, 0.35, 0.15)), back_h=back_h, back_t=uniform(rng, 0.06, 0.25),
+        back=pick(rng, BACKS, (0.5, 0.35, 0.15)), back_h=back_h, back_t=uniform(rng, 0.06, 0.25),
         back_tilt=back_tilt, back_w=uniform(rng, 0.3, 1.0), n_backs=n_backs,
-        back_cushion_t=uniform(rng, MIN_PART, 0.11), arm_sides=arm_sides, arm=_pick(rng, ARMS), arm_w=arm_w,
+        back_cushion_t=uniform(rng, MIN_PART, 0.11), arm_sides=arm_sides, arm=pick(rng, ARMS), arm_w=arm_w,
         arm_h=back_h * uniform(rng, 0.1, 1.15), arm_len=uniform(rng, 0.45, 1.0), chaise_side=side,
         chaise_len=uniform(rng, 0.15, max(0.16, min(0.55, reach))),
         chaise_w=uniform(rng, 0.25, 0.38 if u_shape else 0.5),
