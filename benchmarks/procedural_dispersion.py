@@ -112,16 +112,17 @@ def dispersion(preset: str = "bench", cache_dir: Optional[Path] = None, override
     cat = np.repeat(obj_cat, 24)
     obj = np.repeat([o for _, o in located], 24)
     view = np.tile(np.arange(24), len(located))
-    result = EvaluationResult(split="test", dataset=str(dm.root), categories=tuple(test.categories),
-                              is_nmr_shapenet=False, checkpoint=None, stage="-", output="-", category=cat,
-                              object_index=obj, view=view, iou=np.zeros(len(cat)))
-    scores = score_baselines(("retrieval", "category_mean_shape", "mean_shape"), result, test, train, HALF_SIDE, GRID_RESOLUTION,
-                             progress=progress)
+
+    def images(mask: np.ndarray) -> EvaluationResult:  # the (object, view) images the baselines score
+        return EvaluationResult(split="test", dataset=str(dm.root), categories=tuple(test.categories),
+                                is_nmr_shapenet=False, checkpoint=None, stage="-", output="-", category=cat[mask],
+                                object_index=obj[mask], view=view[mask], iou=np.zeros(int(mask.sum())))
+
+    every = np.ones(len(cat), dtype=bool)
+    scores = score_baselines(("retrieval", "category_mean_shape", "mean_shape"), images(every), test, train,
+                             HALF_SIDE, GRID_RESOLUTION, progress=progress)
     sub = np.repeat(keep, 24)
-    sub_result = EvaluationResult(split="test", dataset=str(dm.root), categories=tuple(test.categories),
-                                  is_nmr_shapenet=False, checkpoint=None, stage="-", output="-", category=cat[sub],
-                                  object_index=obj[sub], view=view[sub], iou=np.zeros(int(sub.sum())))
-    oracle = score_baselines(("oracle",), sub_result, test, train, HALF_SIDE, GRID_RESOLUTION, progress=progress)
+    oracle = score_baselines(("oracle",), images(sub), test, train, HALF_SIDE, GRID_RESOLUTION, progress=progress)
     rng = np.random.default_rng(0)
     train_cat = np.array([train.locate(g)[0] for g in range(len(train))])
     table: dict[str, dict] = {}

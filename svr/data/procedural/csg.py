@@ -354,12 +354,6 @@ def _sdf_many(prog, scale, off, pts, out):
 
 
 @numba.njit(cache=True, parallel=True)
-def _parts_many(prog, scale, off, pts, out):
-    for n in numba.prange(pts.shape[0]):
-        out[n] = int(prog[_sdf_source(prog, scale, off, pts[n, 0], pts[n, 1], pts[n, 2])[1], 20])
-
-
-@numba.njit(cache=True, parallel=True)
 def _surface_many(prog, scale, off, pts, eps, out, out_part):
     for n in numba.prange(pts.shape[0]):
         src = _sdf_source(prog, scale, off, pts[n, 0], pts[n, 1], pts[n, 2])[1]
@@ -456,10 +450,7 @@ def part_at(shape: CSGShape, points: np.ndarray) -> np.ndarray:
     """The part (index into ``shape.parts``) whose surface is nearest each world point (K, 3) -> (K,)
     int64: of the row that last set the CSG value there, so a recess cut into a body has the part of
     the cut, and a hidden primitive never shows."""
-    pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-    out = np.empty(len(pts), dtype=np.int64)
-    _parts_many(shape.program, shape.scale, np.asarray(shape.offset), pts, out)
-    return out
+    return surface_normals_and_parts(shape, points)[1]
 
 
 @dataclass(frozen=True)
