@@ -112,6 +112,13 @@ def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, 
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
+    save_figure(fig, path)
+
+
+def save_figure(fig, path: Path) -> None:
+    """Writes a matplotlib figure as a PNG atomically and closes it."""
+    import matplotlib.pyplot as plt  # heavy: only the plots need it
+
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)

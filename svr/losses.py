@@ -5,6 +5,8 @@ predicted SDF grids from the sampled dataset views (``renderer.render``, the NMR
 compares them with the dataset images: the silhouette against the alpha channel always, the
 shaded colour against RGB only when the scene asks for shading (datasets whose shading model is
 known); which passes run follows the scene, so silhouette-only data never pays for shading.
+``voxel_loss`` is 3D supervision by the dataset's training voxels (a diagnostic of what the
+network can read from one image; the paper's recipe leaves its weight at 0 and renders only).
 ``eikonal_loss`` and ``laplacian_loss`` (``sdfcommon.numerics.regularisers``, shared with mvr) are
 finite differences on the grid, averaged over the narrow band's vertices. Grids are (B, N, N, N)
 in renderer.SDFGrid's layout (``[b, i, j, k]`` at world ``(x_i, y_j, z_k)``), in world units, over
@@ -22,6 +24,8 @@ import renderer
 from sdfcommon.numerics.regularisers import band_regularisers, eikonal_loss, laplacian_loss, narrow_band
 from sdfcommon.tooling.checks import check_float, check_int, check_positive, check_shape
 
+from svr.evaluation.metrics import PROTOCOL_LIKE_LEVEL
+from svr.evaluation.voxels import sdf_at_voxel_centres
 from svr.view_renders import render_views
 
 SILHOUETTE_KINDS = ("mse", "iou")
@@ -145,6 +149,31 @@ def image_loss(
 
 
 # ------------------------------------------------------------------------------------------------
+# 3D supervision
+
+
+def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, level: float = PROTOCOL_LIKE_LEVEL,
+               softness: float = 0.5 / 31) -> torch.Tensor:
+    """Binary cross-entropy of the predicted occupancy at the NMR voxel centres against the
+    dataset's voxels: occupancy ``sigmoid((level - sdf) / softness)``, with ``level`` the offset at
+    which an SDF's direct voxels best match the benchmark protocol's fatter ones.
+
+    Args:
+        sdf: (B, N, N, N) predicted SDF over ``[-half_side, half_side]^3``.
+        voxels: (B, R, R, R) bool solid voxels in the NMR frame.
+        level, softness: world units (default: 0.55 and 0.5 of the 1/31 voxel).
+    Returns:
+        scalar tensor, the mean over voxels.
+    """
+    r = check_shape(voxels, "voxels", "B, R, R, R")["R"]
+    check_positive(softness, "softness")
+    if voxels.shape[0] != sdf.shape[0]:
+        raise ValueError(f"voxels has {voxels.shape[0]} grids but sdf has {sdf.shape[0]}")
+    at, _ = sdf_at_voxel_centres(sdf, -half_side, half_side, r)
+    return F.binary_cross_entropy_with_logits((level - at) / softness, voxels.to(at.dtype))
+
+
+# ------------------------------------------------------------------------------------------------
 # The total
 
 
@@ -155,6 +184,8 @@ class LossWeights:
     Attributes:
         silhouette: weight of the silhouette term.
         shading: weight of the colour term (used only where the dataset's shading model is known).
+        voxel: weight of the 3D term (``voxel_loss``; 0 in the paper's recipe). With the silhouette
+            and shading weights 0 nothing is rendered.
         eikonal: lambda_1 (paper 0.02). laplacian: lambda_2 (paper 0.02).
         band_mu: narrow band half-width in voxels (paper 1.6).
         silhouette_kind: "mse" (paper: L2) or "iou".
@@ -162,55 +193,76 @@ class LossWeights:
 
     silhouette: float = 1.0
     shading: float = 1.0
+    voxel: float = 0.0
     eikonal: float = 0.02
     laplacian: float = 0.02
     band_mu: float = 1.6
     silhouette_kind: str = "mse"
 
     def __post_init__(self) -> None:
-        for name in ("silhouette", "shading", "eikonal", "laplacian"):
+        for name in ("silhouette", "shading", "voxel", "eikonal", "laplacian"):
             check_float(getattr(self, name), f"loss weight {name}", minimum=0)
         check_positive(self.band_mu, "band_mu")
         if self.silhouette_kind not in SILHOUETTE_KINDS:
             raise ValueError(f"silhouette_kind must be one of {SILHOUETTE_KINDS}, got {self.silhouette_kind!r}")
+        if self.silhouette == 0 and self.shading == 0 and self.voxel == 0:
+            raise ValueError("the silhouette, shading and voxel loss weights are all 0: nothing supervises the shape")
+
+    def renders(self, shading: bool) -> bool:
+        """Whether the loss needs renders (a non-zero image term; ``shading``: the scene shades)."""
+        return self.silhouette > 0 or (shading and self.shading > 0)
 
 
 @dataclass(frozen=True)
 class LossTerms:
-    """The weighted total and its (unweighted) parts, all scalar tensors (shading None if unused)."""
+    """The weighted total and its (unweighted) parts, all scalar tensors (None where not computed:
+    the image terms when nothing is rendered, shading when the scene does not shade, voxel when its
+    weight is 0)."""
 
     total: torch.Tensor
-    silhouette: torch.Tensor
+    silhouette: Optional[torch.Tensor]
     shading: Optional[torch.Tensor]
     eikonal: torch.Tensor
     laplacian: torch.Tensor
+    voxel: Optional[torch.Tensor] = None
 
     def as_dict(self) -> dict[str, torch.Tensor]:
-        d = {"total": self.total, "silhouette": self.silhouette, "eikonal": self.eikonal,
-             "laplacian": self.laplacian}
-        if self.shading is not None:
-            d["shading"] = self.shading
-        return d
+        d = {"total": self.total, "silhouette": self.silhouette, "shading": self.shading, "voxel": self.voxel,
+             "eikonal": self.eikonal, "laplacian": self.laplacian}
+        return {k: v for k, v in d.items() if v is not None}
 
 
-def total_loss(image: ImageLoss, sdf: torch.Tensor, voxel_size: float, weights: LossWeights) -> LossTerms:
-    """``w_s L_sil + w_c L_shade + w_e L_eikonal + w_l L_laplacian`` (the last two in the band).
+def total_loss(image: Optional[ImageLoss], sdf: torch.Tensor, voxel_size: float, weights: LossWeights,
+               voxel: Optional[torch.Tensor] = None) -> LossTerms:
+    """``w_s L_sil + w_c L_shade + w_v L_voxel + w_e L_eikonal + w_l L_laplacian`` (the regularisers in
+    the band).
 
     Args:
-        image: the image terms of ``sdf`` (``image_loss``).
+        image: the image terms of ``sdf`` (``image_loss``), or None where nothing was rendered.
         sdf: (B, N, N, N) the same predicted grids. voxel_size: their spacing.
         weights: LossWeights.
+        voxel: ``voxel_loss`` of ``sdf``, needed when ``weights.voxel`` is not 0.
     Returns:
         LossTerms.
     """
+    if weights.renders(image is not None and image.shading is not None) and image is None:
+        raise ValueError("the loss weights ask for image terms but image is None")
+    if weights.voxel > 0 and voxel is None:
+        raise ValueError(f"loss weight voxel is {weights.voxel} but voxel is None")
     eik, lap = band_regularisers(sdf, voxel_size, weights.band_mu)
-    total = weights.silhouette * image.silhouette + weights.eikonal * eik + weights.laplacian * lap
-    if image.shading is not None:
-        total = total + weights.shading * image.shading
-    return LossTerms(total=total, silhouette=image.silhouette, shading=image.shading, eikonal=eik, laplacian=lap)
+    total = weights.eikonal * eik + weights.laplacian * lap
+    if image is not None:
+        total = total + weights.silhouette * image.silhouette
+        if image.shading is not None:
+            total = total + weights.shading * image.shading
+    if weights.voxel > 0:
+        total = total + weights.voxel * voxel
+    return LossTerms(total=total, silhouette=image.silhouette if image is not None else None,
+                     shading=image.shading if image is not None else None, eikonal=eik, laplacian=lap,
+                     voxel=voxel if weights.voxel > 0 else None)
 
 
 __all__ = [
     "narrow_band", "band_regularisers", "eikonal_loss", "laplacian_loss", "silhouette_loss", "shading_loss", "resize_images",
-    "image_loss", "ImageLoss", "LossWeights", "LossTerms", "total_loss", "SILHOUETTE_KINDS",
+    "image_loss", "ImageLoss", "voxel_loss", "LossWeights", "LossTerms", "total_loss", "SILHOUETTE_KINDS",
 ]

@@ -276,6 +276,24 @@ def voxelize_sdf_protocol(values, bbox_min: BoundLike = -1.0, bbox_max: BoundLik
     return voxelize_mesh_nmr(mesh.vertices, mesh.faces, resolution)
 
 
+def sdf_at_voxel_centres(values: torch.Tensor, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0,
+                         resolution: int = NMR_VOXEL_RESOLUTION) -> tuple[torch.Tensor, torch.Tensor]:
+    """The trilinear SDF at the NMR voxel centres, differentiable in ``values``.
+
+    Args:
+        values: (B, Nx, Ny, Nz) float tensor in renderer.SDFGrid's layout over ``[bbox_min, bbox_max]``.
+    Returns:
+        ``(sdf, inside)``: (B, R, R, R) samples in the NMR frame and a (R, R, R) bool tensor of the
+        centres inside the grid's box (elsewhere the samples are the border's).
+    """
+    grid = renderer.SDFGrid(values, bbox_min, bbox_max)
+    pts = nmr_voxel_centres(resolution, dtype=grid.dtype, device=grid.device)
+    b = grid.batch_size
+    sdf = grid.sample(pts.unsqueeze(0).expand(b, -1, -1, -1, -1).reshape(b, -1, 3))
+    inside_box = ((pts >= grid.bbox_min) & (pts <= grid.bbox_max)).all(-1)
+    return sdf.reshape(b, resolution, resolution, resolution), inside_box
+
+
 def voxelize_sdf_direct(values: torch.Tensor, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0,
                         level: float = 0.0, resolution: int = NMR_VOXEL_RESOLUTION) -> torch.Tensor:
     """Fast voxels of SDF grids: the trilinear SDF at the NMR voxel centres is below ``level``.
@@ -288,11 +306,8 @@ def voxelize_sdf_direct(values: torch.Tensor, bbox_min: BoundLike = -1.0, bbox_m
     """
     check_tensor(values, "values")
     squeeze = values.ndim == 3
-    grid = renderer.SDFGrid(values.detach().float() if values.dtype not in (torch.float32, torch.float64)
-                            else values.detach(), bbox_min, bbox_max)
-    pts = nmr_voxel_centres(resolution, dtype=grid.dtype, device=grid.device)
-    b = grid.batch_size
-    sdf = grid.sample(pts.unsqueeze(0).expand(b, -1, -1, -1, -1).reshape(b, -1, 3))
-    inside_box = ((pts >= grid.bbox_min) & (pts <= grid.bbox_max)).all(-1).reshape(1, -1)
-    occ = ((sdf < level) & inside_box).reshape(b, resolution, resolution, resolution)
+    v = values.detach()
+    sdf, inside_box = sdf_at_voxel_centres(v.float() if v.dtype not in (torch.float32, torch.float64) else v,
+                                           bbox_min, bbox_max, resolution)
+    occ = (sdf < level) & inside_box
     return occ[0] if squeeze else occ

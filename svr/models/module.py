@@ -21,7 +21,7 @@ from sdfcommon.tooling.checks import check_instance, check_int
 from svr.inference.checkpoints import CHECKPOINT_KEY, check_stage
 from svr.data.types import SVRBatch
 from svr.distributed import gather_unique
-from svr.losses import LossTerms, LossWeights, image_loss, total_loss
+from svr.losses import LossTerms, LossWeights, image_loss, total_loss, voxel_loss
 from svr.evaluation.metrics import iou_direct, iou_table
 from svr.models.network import SVRNet
 
@@ -157,17 +157,21 @@ class SVRLightningModule(pl.LightningModule):
 
     # ------------------------------------------------------------------ training
     def compute_loss(self, batch: SVRBatch, sdf: torch.Tensor) -> LossTerms:
-        """The stage's loss of predicted grids (B, N, N, N) against the batch's V views."""
-        img = image_loss(sdf, self.net.half_side, batch.images, batch.view_ids, self.scene, self.render_size,
-                         self.loss_weights.silhouette_kind, self.trace_settings, self.backend)
-        if self.capture_visuals:
-            self.visuals = {
-                "input": batch.images[:, 0].detach().cpu(),
-                "target": img.target.detach().cpu(),
-                "silhouette": img.silhouettes.detach().cpu(),
-                **({"colour": img.colours.detach().cpu()} if img.colours is not None else {}),
-            }
-        return total_loss(img, sdf, self.net.voxel_size, self.loss_weights)
+        """The stage's loss of predicted grids (B, N, N, N) against the batch's V views (rendered only
+        where an image term has weight) and, where its weight is not 0, its voxels."""
+        img = None
+        if self.loss_weights.renders(self.scene.wants("shading")):
+            img = image_loss(sdf, self.net.half_side, batch.images, batch.view_ids, self.scene, self.render_size,
+                             self.loss_weights.silhouette_kind, self.trace_settings, self.backend)
+            if self.capture_visuals:
+                self.visuals = {
+                    "input": batch.images[:, 0].detach().cpu(),
+                    "target": img.target.detach().cpu(),
+                    "silhouette": img.silhouettes.detach().cpu(),
+                    **({"colour": img.colours.detach().cpu()} if img.colours is not None else {}),
+                }
+        vox = voxel_loss(sdf, self.net.half_side, batch.voxels) if self.loss_weights.voxel > 0 else None
+        return total_loss(img, sdf, self.net.voxel_size, self.loss_weights, vox)
 
     def _trainable(self) -> list[torch.nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]

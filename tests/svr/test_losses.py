@@ -6,7 +6,11 @@ import pytest
 import torch
 
 import renderer
-from svr.losses import LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss
+import math
+
+from svr.evaluation.voxels import nmr_voxel_centres
+from svr.losses import (LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss,
+                        voxel_loss)
 from svr.view_renders import render_views
 
 
@@ -85,6 +89,43 @@ def test_total_loss_weights_the_terms():
     assert set(terms.as_dict()) == {"total", "silhouette", "shading", "eikonal", "laplacian"}
 
 
+def test_voxel_loss_hand_computed():
+    # A constant SDF c: every centre's logit is (level - c) / softness; half the voxels are solid.
+    c, level, soft = 0.02, 0.01, 0.05
+    sdf = torch.full((1, 8, 8, 8), c, dtype=torch.float64)
+    vox = torch.zeros(1, 4, 4, 4, dtype=torch.bool)
+    vox[..., :2] = True
+    p = 1.0 / (1.0 + math.exp(-(level - c) / soft))
+    expected = -0.5 * (math.log(p) + math.log(1.0 - p))
+    assert voxel_loss(sdf, 0.6, vox, level=level, softness=soft).item() == pytest.approx(expected)
+
+
+def test_voxel_loss_prefers_the_right_shape_and_its_gradient_grows_a_small_one():
+    # Voxels of a sphere of radius 0.3 (centres inside it): the exact SDF scores lower than a
+    # smaller or larger sphere, and on the smaller one gradient descent lowers the SDF (grows it).
+    vox = (nmr_voxel_centres(32).norm(dim=-1) < 0.3)[None]
+    losses = {r: voxel_loss(_sphere(r=r, batch=1), 0.6, vox, level=0.0).item() for r in (0.2, 0.3, 0.4)}
+    assert losses[0.3] < losses[0.2] and losses[0.3] < losses[0.4]
+    small = _sphere(r=0.2, batch=1).requires_grad_(True)
+    voxel_loss(small, 0.6, vox, level=0.0).backward()
+    assert small.grad.sum().item() > 0
+
+
+def test_total_loss_with_voxels_only_renders_nothing():
+    sdf = _sphere(batch=1).double()
+    vox = (nmr_voxel_centres(32).norm(dim=-1) < 0.3)[None]
+    w = LossWeights(silhouette=0.0, shading=0.0, voxel=2.0, eikonal=0.1, laplacian=0.3)
+    assert not w.renders(shading=True)
+    v = voxel_loss(sdf, 0.6, vox)
+    terms = total_loss(None, sdf, 1.2 / 31, w, v)
+    assert terms.total.item() == pytest.approx((2.0 * v + 0.1 * terms.eikonal + 0.3 * terms.laplacian).item())
+    assert set(terms.as_dict()) == {"total", "voxel", "eikonal", "laplacian"}
+    with pytest.raises(ValueError, match="voxel"):
+        total_loss(None, sdf, 1.2 / 31, w)
+    with pytest.raises(ValueError, match="image"):
+        total_loss(None, sdf, 1.2 / 31, LossWeights())
+
+
 # ------------------------------------------------------------------------------------------------
 # bad input
 
@@ -103,3 +144,7 @@ def test_bad_input_names_the_argument():
         LossWeights(silhouette_kind="l1")
 
 
+    with pytest.raises(ValueError, match="all 0"):
+        LossWeights(silhouette=0.0, shading=0.0)
+    with pytest.raises(ValueError, match="voxels"):
+        voxel_loss(_sphere(batch=1), 0.6, torch.zeros(1, 4, 4, dtype=torch.bool))

@@ -1,0 +1,254 @@
+"""Where single-view accuracy is lost, run as ``python -m benchmarks.accuracy_ladder [--preset demo|bench]``:
+rows scored on the same test images by the benchmark protocol, per category and on the mean over
+categories, each with a 95% bootstrap interval over test objects: the ground-truth oracle (the voxel
+protocol's ceiling), the network trained with 3D supervision (``loss=voxels``: the training voxels
+instead of images, a diagnostic of what the architecture can read from one image, not the method),
+the shipped recipe (image losses only, as the paper), silhouette retrieval, the lookup ceiling (best
+training object's voxels), the category mean shape and the mean shape. Each trained row is
+``python -m svr.demo`` with the preset's experiment into ``<work>/<row>`` (a stopped ladder resumes its
+runs; a finished run is only scored again); ``--set`` passes hydra overrides to every trained row.
+The gaps between rows say what limits accuracy (oracle to 3D-supervised: what one image and this
+network cannot recover; 3D-supervised to shipped: what image-only supervision loses; shipped to
+retrieval: whether the network beats a lookup). It writes docs/accuracy_ladder_<preset>.md, .json
+and .png.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+from hydra.utils import instantiate
+
+from benchmarks.procedural_dispersion import PRESETS, lookup_ceiling
+from benchmarks.report import atomic_write_text, machine_info, save_figure
+from sdfcommon.tooling.commands import compose
+
+ROOT = Path(__file__).resolve().parents[1]
+EXPERIMENTS = {"demo": "demo", "bench": "bench"}  # configs/experiment/<name>.yaml of each preset
+TRAINED = {"shipped": (), "voxels": ("loss=voxels",)}  # row -> the overrides of its training run
+# Row key -> (label, source): a trained run's per_object.csv column, or the lookup ceiling.
+ROWS = {
+    "oracle": ("ground-truth oracle", ("shipped", "iou_oracle_mean")),
+    "voxels": ("3D-supervised network (diagnostic)", ("voxels", "iou_mean")),
+    "shipped": ("shipped recipe (images only)", ("shipped", "iou_mean")),
+    "lookup": ("lookup ceiling", None),
+    "retrieval": ("silhouette retrieval", ("shipped", "iou_retrieval_mean")),
+    "category_mean_shape": ("category mean shape", ("shipped", "iou_category_mean_shape_mean")),
+    "mean_shape": ("mean shape", ("shipped", "iou_mean_shape_mean")),
+}
+
+
+def bootstrap_means(values: np.ndarray, category: np.ndarray, samples: int = 2000,
+                    seed: int = 0) -> tuple[dict[int, tuple[float, float]], tuple[float, float]]:
+    """95% percentile bootstrap intervals over objects: per category of its mean, and of the
+    benchmark's mean over categories (objects resampled within each category, so every draw keeps
+    the categories' sizes).
+
+    Args:
+        values: (N,) per-object scores. category: (N,) int category of each object.
+    Returns:
+        ({category: (lo, hi)}, (lo, hi) of the mean over categories).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    category = np.asarray(category)
+    if values.shape != category.shape or values.ndim != 1 or not len(values):
+        raise ValueError(f"values and category must be equal non-empty 1-D arrays, got {values.shape} "
+                         f"and {category.shape}")
+    rng = np.random.default_rng(seed)
+    per_cat, draws = {}, []
+    for c in np.unique(category):
+        v = values[category == c]
+        means = v[rng.integers(len(v), size=(samples, len(v)))].mean(1)
+        per_cat[int(c)] = (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
+        draws.append(means)
+    overall = np.mean(draws, axis=0)
+    return per_cat, (float(np.percentile(overall, 2.5)), float(np.percentile(overall, 97.5)))
+
+
+def read_per_object(path: Path) -> dict[tuple[str, int], dict[str, float]]:
+    """A per_object.csv (``svr.evaluation.tables.write_report``) keyed by (category name, object index)."""
+    with open(path, newline="") as f:
+        return {(r["category"], int(r["object_index"])): {k: float(v) for k, v in r.items() if k.startswith("iou_")}
+                for r in csv.DictReader(f)}
+
+
+def lookup_per_object(preset: str, overrides: Sequence[str] = ()) -> tuple[dict[tuple[str, int], float], list[str]]:
+    """The lookup ceiling of every test object (``benchmarks.procedural_dispersion``), keyed as
+    ``read_per_object``, and the category names in the data's order."""
+    cfg = compose("eval", [f"data={PRESETS[preset]}", *overrides])
+    dm = instantiate(cfg.data)
+    dm.prepare_data()
+    test, train = dm.dataset("test"), dm.dataset("train")
+
+    def voxels(ds) -> np.ndarray:
+        return np.stack([ds.voxels(g).numpy() for g in range(len(ds))])
+
+    best = lookup_ceiling(voxels(test), voxels(train))
+    names = [n for _, n in test.categories]
+    out = {}
+    for g in range(len(test)):
+        c, o = test.locate(g)
+        out[(names[c], o)] = float(best[g])
+    return out, names
+
+
+def train_row(row: str, preset: str, work: Path, extra: Sequence[str], quiet: bool) -> Path:
+    """Trains (or resumes, or only scores) one trained row with ``python -m svr.demo``; returns its folder."""
+    out = work / row
+    cmd = [sys.executable, "-m", "svr.demo", f"out={out}", f"experiment={EXPERIMENTS[preset]}",
+           *TRAINED[row], *extra] + (["quiet=true"] if quiet else [])
+    print(f"[{row}] {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
+    subprocess.run(cmd, check=True, cwd=ROOT)
+    return out
+
+
+def ladder(objects: dict[str, dict[tuple[str, int], dict[str, float]]], lookup: dict[tuple[str, int], float],
+           categories: Sequence[str]) -> dict:
+    """Per row: per-category and mean scores with intervals, over the objects every source scored.
+
+    Args:
+        objects: trained row -> ``read_per_object`` of its run.
+        lookup: ``lookup_per_object``.
+        categories: category names in table order.
+    Returns:
+        {"rows": {key: {"label", "categories": {name: {"iou", "interval", "objects"}}, "mean",
+        "interval"}}, "objects": count}.
+    """
+    keys = sorted(set(lookup).intersection(*(set(v) for v in objects.values())))
+    if not keys:
+        raise ValueError("the runs and the lookup share no test object: were they made from the same data?")
+    cat = np.array([categories.index(k[0]) for k in keys])
+    rows = {}
+    for key, (label, source) in ROWS.items():
+        if source is None:
+            values = np.array([lookup[k] for k in keys])
+        elif source[0] not in objects or source[1] not in objects[source[0]][keys[0]]:
+            continue
+        else:
+            values = np.array([objects[source[0]][k][source[1]] for k in keys])
+        per_cat, overall = bootstrap_means(values, cat)
+        table = {name: {"iou": float(values[cat == c].mean()), "interval": per_cat[c], "objects": int((cat == c).sum())}
+                 for c, name in enumerate(categories) if c in per_cat}
+        rows[key] = {"label": label, "categories": table,
+                     "mean": float(np.mean([r["iou"] for r in table.values()])), "interval": overall}
+    return {"rows": rows, "objects": len(keys)}
+
+
+def markdown_table(summary: dict) -> str:
+    """Rows of the ladder as table rows, categories as columns, the mean last."""
+    names = list(next(iter(summary["rows"].values()))["categories"])
+    lines = ["| row | " + " | ".join(names) + " | **mean** |", "|---|" + "---:|" * (len(names) + 1)]
+    for r in summary["rows"].values():
+        cells = [f"{r['categories'][n]['iou']:.3f}" for n in names]
+        lo, hi = r["interval"]
+        lines.append(f"| {r['label']} | " + " | ".join(cells) + f" | **{r['mean']:.3f}** [{lo:.3f}, {hi:.3f}] |")
+    return "\n".join(lines) + "\n"
+
+
+def reading(summary: dict) -> str:
+    """The gaps between rows, in words (only those whose rows were measured)."""
+    m = {k: r["mean"] for k, r in summary["rows"].items()}
+    out = []
+    pairs = (("oracle", "voxels", "what one image and this network cannot recover, even with 3D targets"),
+             ("voxels", "shipped", "what training from images alone loses against 3D targets"),
+             ("shipped", "retrieval", "the network's margin over a silhouette lookup (negative: lookup wins)"),
+             ("shipped", "category_mean_shape", "the network's margin over knowing only the category"))
+    for a, b, what in pairs:
+        if a in m and b in m:
+            out.append(f"- {summary['rows'][a]['label']} - {summary['rows'][b]['label']}: "
+                       f"**{m[a] - m[b]:+.3f}**: {what}.")
+    if "shipped" in summary["rows"] and "category_mean_shape" in summary["rows"]:
+        below = [n for n, r in summary["rows"]["shipped"]["categories"].items()
+                 if r["iou"] < summary["rows"]["category_mean_shape"]["categories"][n]["iou"]]
+        out.append(f"- categories where the shipped recipe is below the category mean shape: "
+                   f"{', '.join(below) if below else 'none'}.")
+    return "\n".join(out) + "\n"
+
+
+def plot(summary: dict, path: Path) -> None:
+    """Per category, each row's mean with its interval (one colour per row), the means at the right."""
+    import matplotlib  # heavy: only the plot needs it
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # heavy: as above
+
+    rows = summary["rows"]
+    names = list(next(iter(rows.values()))["categories"]) + ["mean"]
+    fig, ax = plt.subplots(figsize=(11, 4.2), dpi=110)
+    width = 0.8 / len(rows)
+    for i, r in enumerate(rows.values()):
+        ys = [r["categories"][n]["iou"] for n in names[:-1]] + [r["mean"]]
+        ivs = [r["categories"][n]["interval"] for n in names[:-1]] + [r["interval"]]
+        xs = np.arange(len(names)) + (i - (len(rows) - 1) / 2) * width
+        err = np.array([[y - lo for y, (lo, _) in zip(ys, ivs)], [hi - y for y, (_, hi) in zip(ys, ivs)]])
+        ax.errorbar(xs, ys, yerr=err, fmt="o", ms=3, lw=1, capsize=1.5, label=r["label"])
+    ax.set_xticks(np.arange(len(names)), names, rotation=30, ha="right", fontsize=8)
+    ax.set_ylabel("voxel IoU (test split, 95% interval)")
+    ax.set_ylim(0, 1.02)
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=7, ncol=4, loc="lower left")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+EXAMPLES = """\
+examples:
+  python -m benchmarks.accuracy_ladder                          # demo preset: two demo trainings
+  python -m benchmarks.accuracy_ladder --rows shipped            # only the shipped recipe's run
+  python -m benchmarks.accuracy_ladder --preset bench --set stage.coarse.max_time=00:01:00:00
+"""
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--preset", choices=tuple(EXPERIMENTS), default="demo")
+    parser.add_argument("--rows", nargs="+", choices=tuple(TRAINED), default=list(TRAINED),
+                        help="the trained rows to run (default: all); the shipped run also scores the baselines")
+    parser.add_argument("--work", type=Path, default=None, help="run folders (default: outputs/ladder_<preset>)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help="a hydra override for every trained row (repeatable)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="stem of the .md/.json/.png outputs (default: docs/accuracy_ladder_<preset>)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    if "shipped" not in args.rows:
+        parser.error("--rows must include shipped: its run scores the oracle and the baselines")
+    work = (args.work or ROOT / "outputs" / f"ladder_{args.preset}").resolve()
+    start = time.time()
+    objects = {row: read_per_object(train_row(row, args.preset, work, args.overrides, args.quiet) / "per_object.csv")
+               for row in args.rows}
+    data = [o for o in args.overrides if o.startswith("data.")]
+    lookup, categories = lookup_per_object(args.preset, data)
+    timings = {row: json.loads((work / row / "timings.json").read_text()) for row in args.rows}
+    summary = ladder(objects, lookup, categories)
+    seconds = time.time() - start
+    command = "python -m benchmarks.accuracy_ladder " + " ".join(argv if argv is not None else sys.argv[1:])
+    trained = ", ".join(f"{row} {timings[row]['train_seconds'] / 60:.1f} min" for row in args.rows
+                        if timings[row].get("train_seconds") is not None)
+    stem = args.out or ROOT / "docs" / f"accuracy_ladder_{args.preset}"
+    text = (f"# Accuracy ladder: where single-view accuracy is lost ({args.preset} preset)\n\n"
+            f"Command: `{command.strip()}` ({seconds / 60:.1f} min this time; training: {trained}).\n\n"
+            f"{machine_info()}\n\nTest split, {summary['objects']} objects, all 24 views each, scored by the "
+            f"benchmark protocol; the interval is a 95% bootstrap over test objects (resampled within each "
+            f"category). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}` "
+            f"(+ `loss=voxels` for the 3D-supervised one){' with ' + ' '.join(args.overrides) if args.overrides else ''}."
+            f"\n\n{markdown_table(summary)}\n## Reading\n\n{reading(summary)}\n![ladder]({stem.name}.png)\n")
+    print(text)
+    atomic_write_text(stem.with_suffix(".md"), text)
+    atomic_write_text(stem.with_suffix(".json"), json.dumps({**summary, "seconds": seconds, "timings": timings,
+                                                             "command": command.strip()}, indent=1) + "\n")
+    plot(summary, stem.with_suffix(".png"))
+    print(f"wrote {stem}.md, .json and .png")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,70 @@
+"""benchmarks.accuracy_ladder: the bootstrap intervals against hand computations, and the ladder's
+table from per-object scores (the trained rows themselves: tests/svr/test_models.py)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmarks.accuracy_ladder import ROWS, bootstrap_means, ladder, markdown_table, read_per_object, reading
+
+
+def test_constant_scores_give_zero_width_intervals():
+    values = np.array([0.2, 0.2, 0.2, 0.6, 0.6])
+    per_cat, overall = bootstrap_means(values, np.array([0, 0, 0, 1, 1]))
+    assert per_cat[0] == pytest.approx((0.2, 0.2)) and per_cat[1] == pytest.approx((0.6, 0.6))
+    assert overall == pytest.approx((0.4, 0.4))  # the mean of the category means, not of objects (0.36)
+
+
+def test_interval_of_a_known_sample():
+    # Category 0 holds 0 and 1: a resample's mean is 0, 0.5 or 1 with chances 1/4, 1/2, 1/4, so its
+    # 2.5th and 97.5th percentiles are 0 and 1. With category 1 constant at 0.5 the mean over
+    # categories is 0.25, 0.5 or 0.75 with the same chances.
+    per_cat, overall = bootstrap_means(np.array([0.0, 1.0, 0.5]), np.array([0, 0, 1]), samples=4000)
+    assert per_cat[0] == pytest.approx((0.0, 1.0))
+    assert overall == pytest.approx((0.25, 0.75))
+
+
+def test_bootstrap_rejects_mismatched_input():
+    with pytest.raises(ValueError, match="values and category"):
+        bootstrap_means(np.zeros(3), np.zeros(2))
+
+
+def _objects(scale: float) -> dict:
+    keys = [("chair", 0), ("chair", 1), ("table", 0)]
+    return {k: {"iou_mean": scale * (i + 1) / 4, "iou_coarse_mean": 0.1, "iou_oracle_mean": 0.99,
+                "iou_retrieval_mean": 0.5, "iou_category_mean_shape_mean": 0.3, "iou_mean_shape_mean": 0.2}
+            for i, k in enumerate(keys)}
+
+
+def test_ladder_rows_means_and_reading():
+    lookup = {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6, ("table", 9): 0.1}  # table 9: not scored
+    summary = ladder({"shipped": _objects(1.0), "voxels": _objects(1.2)}, lookup, ["chair", "table"])
+    rows = summary["rows"]
+    assert list(rows) == list(ROWS) and summary["objects"] == 3
+    # shipped: chair objects 0.25 and 0.5 -> 0.375; table 0.75; mean over categories 0.5625
+    assert rows["shipped"]["categories"]["chair"]["iou"] == pytest.approx(0.375)
+    assert rows["shipped"]["mean"] == pytest.approx(0.5625)
+    assert rows["voxels"]["mean"] == pytest.approx(1.2 * 0.5625)
+    assert rows["lookup"]["mean"] == pytest.approx((0.75 + 0.6) / 2)
+    lo, hi = rows["shipped"]["interval"]
+    assert lo <= rows["shipped"]["mean"] <= hi
+    table = markdown_table(summary)
+    assert "| shipped recipe (images only) | 0.375 | 0.750 | **0.562**" in table
+    text = reading(summary)
+    assert "**+0.062**" in text  # shipped 0.5625 - retrieval 0.5
+    assert "below the category mean shape: none" in text
+
+
+def test_ladder_without_the_voxel_row_and_with_disjoint_data():
+    summary = ladder({"shipped": _objects(1.0)}, {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6},
+                     ["chair", "table"])
+    assert "voxels" not in summary["rows"] and "shipped" in summary["rows"]
+    with pytest.raises(ValueError, match="same data"):
+        ladder({"shipped": _objects(1.0)}, {("sofa", 0): 0.5}, ["chair", "table"])
+
+
+def test_read_per_object(tmp_path):
+    path = tmp_path / "per_object.csv"
+    path.write_text("category_id,category,object_index,views,iou_mean,iou_oracle_mean\n"
+                    "03001627,chair,4,24,0.5,0.99\n")
+    assert read_per_object(path) == {("chair", 4): {"iou_mean": 0.5, "iou_oracle_mean": 0.99}}
