@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = ("sdfdiff-train", "sdfdiff-evaluate", "sdfdiff-infer", "sdfdiff-mvr")
+SCRIPTS = ("sdfdiff-train", "sdfdiff-evaluate", "sdfdiff-infer", "sdfdiff-mvr", "sdfdiff-build")
 
 
 def _declared_packages() -> list[str]:

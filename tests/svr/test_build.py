@@ -157,3 +157,47 @@ def test_bad_input_is_one_line(meshes, tmp_path, monkeypatch, capsys):
     (empty / "chair").mkdir(parents=True)
     line = expect_usage_error(main, [f"input={empty}", f"out={tmp_path / 'o5'}"], monkeypatch, capsys, prog)
     assert "no category folder with meshes" in line
+
+
+def _spawned_children() -> list[int]:
+    """Process ids of this process's spawned worker processes (multiprocessing's spawn_main)."""
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            ppid = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            cmdline = (stat.parent / "cmdline").read_bytes()
+        except (OSError, ValueError, IndexError):
+            continue
+        if ppid == os.getpid() and b"spawn_main" in cmdline:
+            found.append(int(stat.parent.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the worker through /proc")
+def test_a_worker_killed_mid_build_costs_no_object(meshes, tmp_path, monkeypatch, capsys):
+    """A worker process that dies (SIGKILL here; a crash in a mesh library or the OOM killer in
+    life) breaks the pool: the objects it may have held are rebuilt one by one, the build goes on."""
+    out = tmp_path / "nmr"
+    killed = []
+
+    def kill_a_worker() -> None:
+        end = time.time() + 120
+        while time.time() < end and not killed:
+            if len(list((out / ".build" / "objects").rglob("*.json"))) >= 1:
+                for pid in _spawned_children():
+                    os.kill(pid, signal.SIGKILL)
+                    killed.append(pid)
+                    break
+            time.sleep(0.02)
+
+    import threading
+
+    thread = threading.Thread(target=kill_a_worker, daemon=True)
+    thread.start()
+    run_entry(main, [f"input={meshes}", f"out={out}", "workers=1", "progress=false", "supersample=2",
+                     "ray_directions=7"], monkeypatch)
+    thread.join(5)
+    assert killed, "no worker was found to kill"
+    rows = _manifest(out)
+    assert sum(r["status"] == "ok" for r in rows) == 6 and sum(r["status"] == "skipped" for r in rows) == 2
+    assert not any("worker process died" in r["reason"] for r in rows)
