@@ -1,7 +1,7 @@
 """Throughput of the mesh-to-NMR builder (``svr.data.build``) in meshes per minute, run as ``python -m
 benchmarks.mesh_build_speed``. It makes its own input (nothing is downloaded): the 13 procedural NMR
-categories' shapes, two seeds each, exported by marching cubes at three grid sizes (about 3k, 17k
-and 60k triangles; the report gives the counts) as OBJ files with a two-material MTL in the flat
+categories' shapes, two seeds each, exported by marching cubes at the grid sizes that give about 3k,
+15k and 50k triangles (the report gives the counts) as OBJ files with a two-material MTL in the flat
 layout, repeated to ``--objects`` meshes; then it times whole builds at the default settings
 (``configs/build.yaml``: 24 views of 64^2 at 3 x 3 samples, 32^3 voxels from 13 line directions,
 all cores), wall clock from the call to the packed folder (pool start and packing included), and
@@ -29,7 +29,8 @@ from svr.data.build.examples import procedural_mesh, write_obj
 from svr.data.procedural.categories import NMR_PROCEDURAL_CATEGORIES
 
 ROOT = Path(__file__).resolve().parents[1]
-GRIDS = (64, 128, 240)     # marching-cubes grid sides: the three mesh sizes
+TARGETS = (3000, 15000, 50000)  # triangles of the three mesh sizes (reached to within ~15%)
+PROBE_GRID = 64
 SEEDS = (0, 1)
 COLOURS = ((0.55, 0.35, 0.2), (0.2, 0.25, 0.3))
 
@@ -39,24 +40,28 @@ def make_meshes(folder: Path, objects: int) -> list[int]:
     triangle counts. Unique meshes are made once and copied."""
     unique = []
     for cat in NMR_PROCEDURAL_CATEGORIES:
-        for grid in GRIDS:
+        for target in TARGETS:
             for seed in SEEDS:
-                unique.append((cat.name, grid, seed))
+                unique.append((cat.name, target, seed))
     counts = []
     made: dict[tuple, tuple[Path, int]] = {}
     for k in range(objects):
-        name, grid, seed = unique[k % len(unique)]
-        path = folder / name / f"{name}_{grid}_{seed}_{k:05d}.obj"
-        if (name, grid, seed) in made:
-            src, n = made[(name, grid, seed)]
+        name, target, seed = unique[k % len(unique)]
+        path = folder / name / f"{name}_{target}_{seed}_{k:05d}.obj"
+        if (name, target, seed) in made:
+            src, n = made[(name, target, seed)]
             path.parent.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(src, path)
             shutil.copyfile(src.with_suffix(".mtl"), path.with_suffix(".mtl"))
         else:
-            v, f = procedural_mesh(name, (seed,), grid)
+            # Triangles grow as the grid side squared: the side that gives about the target.
+            v, f = procedural_mesh(name, (seed,), PROBE_GRID)
+            grid = int(np.clip(round(PROBE_GRID * np.sqrt(target / len(f)) / 4) * 4, 16, 512))
+            if grid != PROBE_GRID:
+                v, f = procedural_mesh(name, (seed,), grid)
             write_obj(path, v, f, COLOURS)
             n = len(f)
-            made[(name, grid, seed)] = (path, n)
+            made[(name, target, seed)] = (path, n)
         counts.append(n)
     return counts
 
@@ -87,7 +92,7 @@ def measure(objects: int = 240, repeats: int = 3, workers: Optional[int] = None,
         "objects": objects, "repeats": repeats,
         "workers": workers if workers is not None else default_workers(),
         "triangles": {"min": int(tri.min()), "median": int(np.median(tri)), "mean": int(tri.mean()),
-                      "max": int(tri.max()), "grids": list(GRIDS)},
+                      "max": int(tri.max()), "targets": list(TARGETS)},
         "seconds": [round(s, 2) for s in seconds],
         "meshes_per_minute": [round(x, 1) for x in rates],
         "median_meshes_per_minute": round(statistics.median(rates), 1),
@@ -105,8 +110,10 @@ Made by `{command}` (benchmarks/mesh_build_speed.py; its docstring says what is 
 **{result['median_meshes_per_minute']:.0f} meshes per minute** (median of {result['repeats']} builds of
 {result['objects']} meshes, {result['workers']} worker processes, default settings of configs/build.yaml).
 
-Meshes: procedural NMR categories exported by marching cubes at grids {t['grids']}, triangles
-min {t['min']}, median {t['median']}, mean {t['mean']}, max {t['max']}; OBJ with a two-material MTL.
+Meshes: the 13 procedural NMR categories' shapes (2 seeds) exported by marching cubes on the grid
+that gives about {', '.join(str(x) for x in t['targets'])} triangles, repeated to {result['objects']};
+triangles min {t['min']}, median {t['median']}, mean {t['mean']}, max {t['max']}; OBJ files with a
+two-material MTL, flat layout.
 
 | build | seconds | meshes / min |
 | --- | --- | --- |

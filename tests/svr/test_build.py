@@ -17,7 +17,11 @@ import pytest
 import trimesh
 
 from sdfcommon.tooling.outputs import write_mesh
+from sdfcommon.tooling.commands import compose
+from sdfcommon.tooling.settings import build_settings
 from svr.data.build.__main__ import main
+from svr.data.build.dataset import build_mesh
+from svr.data.build.meshes import load_mesh
 from svr.data.build.examples import SOLIDS, shape_mesh, write_example_meshes
 from svr.data.build.layouts import assign_splits, find_objects
 from svr.data.nmr import NMRDataset, read_metadata
@@ -73,10 +77,38 @@ def test_the_loader_reads_what_the_command_writes(meshes, tmp_path, monkeypatch,
     assert rows["empty"]["status"] == "skipped" and rows["empty"]["reason"] == "no triangles in the file"
     assert rows["corrupt"]["status"] == "skipped" and "\n" not in rows["corrupt"]["reason"]
     assert float(rows["sphere"]["leak_score"]) < 0.01 and int(rows["torus"]["triangles"]) > 100
-    # A second run finds the build done and changes nothing.
+    # A second run finds the build done and changes nothing; another build is refused there ...
     before = _data_files(out)
     run_entry(main, [f"input={meshes}", f"out={out}", "split_ratios=[1,0,0]", *FAST], monkeypatch)
     assert "nothing to do" in capsys.readouterr().out and _data_files(out) == before
+    line = expect_usage_error(main, [f"input={meshes}", f"out={out}", "seed=1", *FAST], monkeypatch, capsys)
+    assert "holds another build" in line and _data_files(out) == before
+    # ... unless it may replace it.
+    run_entry(main, [f"input={meshes}", f"out={out}", "seed=1", "overwrite=true", *FAST], monkeypatch)
+    assert json.loads((out / "metadata.json").read_text())["settings"]["seed"] == 1
+
+
+def test_textures_colours_and_sdf_grids(tmp_path):
+    from PIL import Image
+
+    folder = tmp_path / "cube"
+    folder.mkdir()
+    Image.new("RGB", (4, 4), (230, 20, 20)).save(folder / "red.png")
+    (folder / "cube.mtl").write_text("newmtl tex\nKd 1 1 1\nmap_Kd red.png\n")
+    box = trimesh.creation.box((1.0, 0.8, 0.6))
+    lines = ["mtllib cube.mtl", "usemtl tex"] + [f"v {x} {y} {z}" for x, y, z in box.vertices]
+    lines += ["vt 0 0", "vt 1 0", "vt 1 1"] + [f"f {a + 1}/1 {b + 1}/2 {c + 1}/3" for a, b, c in box.faces]
+    (folder / "cube.obj").write_text("\n".join(lines) + "\n")
+    mesh = load_mesh(folder / "cube.obj")
+    assert len(mesh.textures) == 1 and (mesh.face_texture == 0).all()
+    assert np.allclose(mesh.vertices.max(0) - mesh.vertices.min(0), [1.0, 0.8, 0.6])  # longest side 1
+    settings = build_settings(compose("build", ["input=unused", "out=unused", "sdf_resolution=24", "supersample=2"]))
+    stats, images, vox, sdf = build_mesh(mesh, settings)
+    opaque = images[:, 3] == 255
+    rgb = images[:, :3].transpose(1, 0, 2, 3)[:, opaque].astype(float)
+    assert rgb[0].mean() > 3 * rgb[1].mean() and rgb[0].mean() > 3 * rgb[2].mean()  # the texture's red
+    assert stats.watertight and vox.voxels.sum() > 0.4 * 32 ** 3
+    assert sdf.shape == (24, 24, 24) and sdf[12, 12, 12] < 0 < sdf[0, 0, 0]
 
 
 def test_layouts_categories_and_split_lists(tmp_path):
