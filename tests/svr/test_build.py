@@ -20,6 +20,7 @@ from sdfcommon.tooling.outputs import write_mesh
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
 from svr.data.build.__main__ import main
+from svr.data.build import dataset
 from svr.data.build.dataset import build_mesh
 from svr.data.build.meshes import load_mesh
 from svr.data.build.examples import SOLIDS, shape_mesh, write_example_meshes
@@ -208,7 +209,8 @@ def _spawned_children() -> list[int]:
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the worker through /proc")
 def test_a_worker_killed_mid_build_costs_no_object(meshes, tmp_path, monkeypatch, capsys):
     """A worker process that dies (SIGKILL here; a crash in a mesh library or the OOM killer in
-    life) breaks the pool: the objects it may have held are rebuilt one by one, the build goes on."""
+    life) breaks the pool: the objects it may have held are rebuilt one by one, the build goes on.
+    The packing runs in a worker process as well (as it does for large builds)."""
     out = tmp_path / "nmr"
     killed = []
 
@@ -226,6 +228,7 @@ def test_a_worker_killed_mid_build_costs_no_object(meshes, tmp_path, monkeypatch
 
     thread = threading.Thread(target=kill_a_worker, daemon=True)
     thread.start()
+    monkeypatch.setattr(dataset, "PARALLEL_PACK_OBJECTS", 0)  # the packing in a worker process too
     run_entry(main, [f"input={meshes}", f"out={out}", "workers=1", "progress=false", "supersample=2",
                      "ray_directions=7"], monkeypatch)
     thread.join(5)
