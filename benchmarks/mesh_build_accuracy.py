@@ -113,6 +113,19 @@ them, so these figures bound the builder's error from above.
 | --- | --- | --- | --- | --- | --- |
 {trip_rows}
 
+## What differs from the original NMR renders and voxels
+
+The original renders came from Blender 2.7x's Blender Internal engine with a scene file that was
+never published (SPEC section 5b). The builder keeps what is known (ShapeNetCore v1 OBJ with its MTL
+colours, bounding-box centre and longest side 1, the cameras, one lamp plus environment light,
+alpha = coverage) and differs in: the lamp's position (Blender's default lamp, as the procedural
+data; NMR's is unknown); flat Lambert shading with both sides of a face lit, no specular term, no
+shadows, no colour management; transparent materials opaque (as NMR rendered them); a 3 x 3 box
+filter for anti-aliasing rather than Blender's filter; RGB stored on white, not inverted (the
+loader reads both). How NMR's 32^3 voxels were made was never published: the builder's rule (winding
+votes united with the benchmark protocol's surface voxels) makes the exact shape score about 1 under
+the benchmark's own protocol, as the procedural data's voxels do.
+
 Machine:
 
 {machine_info()}
