@@ -236,3 +236,8 @@ def test_a_worker_killed_mid_build_costs_no_object(meshes, tmp_path, monkeypatch
     rows = _manifest(out)
     assert sum(r["status"] == "ok" for r in rows) == 6 and sum(r["status"] == "skipped" for r in rows) == 2
     assert not any("worker process died" in r["reason"] for r in rows)
+    # The same bytes as a build in this process alone, without a death.
+    alone = tmp_path / "alone"
+    run_entry(main, [f"input={meshes}", f"out={alone}", "workers=0", "progress=false", "supersample=2",
+                     "ray_directions=7"], monkeypatch)
+    assert _data_files(alone) == _data_files(out)
