@@ -72,8 +72,8 @@ configs/build.yaml. Speed: [mesh_build_speed.md](mesh_build_speed.md). Usage: RE
 Each solid (normalised as NMR's objects: centred, longest side 1) is meshed by marching cubes of its
 exact SDF on a {result['solid_grid']}^3 grid, damaged (svr/data/build/examples.py: `hole` removes the
 faces within 0.12 of the point farthest along (1, 1, 1), about 4 voxels across; `flipped` reverses 2%
-of the faces at random; `inner_shell` adds a copy moved 0.04 inwards along the vertex normals, same
-orientation; `all` does the three), and voxelised at 32^3. IoU against the exact solid's voxels by
+of the faces at random; `scrambled` reverses each face with probability 1/2; `inner_shell` adds a copy moved 0.04 inwards along the vertex normals, same
+orientation; `all` does hole, flipped and inner_shell), and voxelised at 32^3. IoU against the exact solid's voxels by
 the benchmark's rule (`voxelize_shape(rule="protocol")`, what the procedural data stores):
 **builder** (default: orientation repair, then winding votes along 13 line directions united with
 the protocol's surface voxels), **votes only** (`orient=false`), **protocol** (the benchmark's own
@@ -89,6 +89,9 @@ Lowest builder IoU on a damaged solid: {min(r['iou_builder'] for r in damaged):.
 against the exact surface (sharp box edges are cut at the mesh's resolution), the same for the
 builder and the protocol. A hole removes surface, so the voxels that held only that surface are
 missing whatever the method; the flood fill, in contrast, leaks through the hole and empties the solid.
+Faces without any consistent orientation (`scrambled`) defeat winding votes alone; the builder's
+orientation repair (each piece of faces joined by two-face edges takes one orientation, outward by
+its signed volume) restores them.
 
 ## Renders against the project's renderer
 

@@ -25,7 +25,7 @@ SOLIDS: dict[str, Callable[[], CSGShape]] = {
     "box": lambda: CSGBuilder().box((0.0, 0.0, 0.0), (0.5, 0.3, 0.2), rotation((0.0, 1.0, 0.0), 0.3))
     .shape().normalized(),
 }
-DAMAGES = ("clean", "hole", "flipped", "inner_shell", "all")
+DAMAGES = ("clean", "hole", "flipped", "scrambled", "inner_shell", "all")
 HOLE_RADIUS = 0.12         # world units (about 4 voxels): the patch removed around the point farthest
 HOLE_DIRECTION = np.array([1.0, 1.0, 1.0]) / np.sqrt(3.0)  # ... along this direction
 FLIPPED_FRACTION = 0.02    # of the faces, reversed at random
@@ -56,7 +56,8 @@ def damage(vertices: np.ndarray, faces: np.ndarray, kind: str, seed: int = 0) ->
     Args:
         kind: "clean" (unchanged), "hole" (the faces whose centroid lies within ``HOLE_RADIUS`` of
             the vertex farthest along ``HOLE_DIRECTION`` removed), "flipped" (``FLIPPED_FRACTION`` of the faces,
-            at least one, reversed), "inner_shell" (a copy moved ``INNER_SHELL_OFFSET`` inwards along
+            at least one, reversed), "scrambled" (every face reversed with probability 1/2: no
+            orientation at all, as many CAD exports), "inner_shell" (a copy moved ``INNER_SHELL_OFFSET`` inwards along
             the vertex normals added, same orientation: every point inside it is inside twice) or
             "all" (the three at once).
     Returns:
@@ -70,9 +71,12 @@ def damage(vertices: np.ndarray, faces: np.ndarray, kind: str, seed: int = 0) ->
         f = f[np.linalg.norm(v[f].mean(1) - tip, axis=1) > HOLE_RADIUS]
         used, f = np.unique(f, return_inverse=True)  # the hole's vertices go too
         v, f, faces = v[used], f.reshape(-1, 3), f.reshape(-1, 3)
-    if kind in ("flipped", "all"):
+    if kind in ("flipped", "scrambled", "all"):
         rng = np.random.default_rng(seed)
-        pick = rng.choice(len(f), max(1, int(round(FLIPPED_FRACTION * len(f)))), replace=False)
+        if kind == "scrambled":
+            pick = np.nonzero(rng.random(len(f)) < 0.5)[0]
+        else:
+            pick = rng.choice(len(f), max(1, int(round(FLIPPED_FRACTION * len(f)))), replace=False)
         f = f.copy()
         f[pick] = f[pick][:, ::-1]
     if kind in ("inner_shell", "all"):
