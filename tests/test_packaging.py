@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SCRIPTS = ("sdfdiff-train", "sdfdiff-evaluate", "sdfdiff-infer", "sdfdiff-mvr")
+SCRIPTS = ("sdfdiff-train", "sdfdiff-evaluate", "sdfdiff-infer", "sdfdiff-mvr", "sdfdiff-build")
 
 
 def _declared_packages() -> list[str]:
@@ -35,8 +35,16 @@ def wheel(tmp_path_factory) -> Path:
     """The wheel of a clean copy of the source (a build/ folder left in the checkout by an earlier
     build could hold modules that no longer exist)."""
     source = tmp_path_factory.mktemp("source") / "sdfdiff"
-    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(
-        ".git", ".venv", "build", "*.egg-info", "outputs", "multirun", "cache", "__pycache__", "docs", "tests"))
+    anywhere = shutil.ignore_patterns(".git", ".venv", "*.egg-info", "outputs", "multirun", "cache", "__pycache__",
+                                      "docs", "tests")
+
+    def ignore(folder: str, names: list[str]) -> set[str]:  # build/ at the top only: svr/data/build is a package
+        skipped = set(anywhere(folder, names))
+        if Path(folder) == ROOT and "build" in names:
+            skipped.add("build")
+        return skipped
+
+    shutil.copytree(ROOT, source, ignore=ignore)
     out = tmp_path_factory.mktemp("wheel")
     subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out),
                     str(source)], check=True, capture_output=True, text=True, timeout=600)

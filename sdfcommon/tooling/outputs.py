@@ -9,6 +9,7 @@ import json
 import os
 import re
 import tempfile
+import zipfile
 from pathlib import Path
 from typing import Callable, IO, Iterator, Sequence
 
@@ -91,9 +92,26 @@ def write_torch(path: str | Path, obj) -> Path:
     return atomic_write(path, lambda f: torch.save(obj, f))
 
 
+# The date every member of a written npz carries (zip's earliest), so that the same arrays give the
+# same bytes (``numpy.savez_compressed`` stamps the current time).
+_NPZ_DATE = (1980, 1, 1, 0, 0, 0)
+
+
 def write_npz(path: str | Path, **arrays) -> Path:
-    """``numpy.savez_compressed`` atomically."""
-    return atomic_write(path, lambda f: np.savez_compressed(f, **arrays))
+    """What ``numpy.savez_compressed`` writes (one deflated ``<key>.npy`` per array, read back by
+    ``numpy.load``), atomically and reproducibly: the same arrays give the same bytes. Arrays are
+    streamed, so a memory map is never read whole into memory."""
+
+    def write(f: IO[bytes]) -> None:
+        with zipfile.ZipFile(f, mode="w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+            for key, value in arrays.items():
+                info = zipfile.ZipInfo(f"{key}.npy", date_time=_NPZ_DATE)
+                info.compress_type = zipfile.ZIP_DEFLATED
+                info.external_attr = 0o644 << 16
+                with zf.open(info, mode="w", force_zip64=True) as member:
+                    np.lib.format.write_array(member, np.asanyarray(value), allow_pickle=False)
+
+    return atomic_write(path, write)
 
 
 def write_mesh(path: str | Path, mesh) -> Path:

@@ -13,8 +13,8 @@ import os
 import signal
 import sys
 import threading
-from concurrent.futures import ProcessPoolExecutor
-from typing import Callable, Optional
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from typing import Any, Callable, Iterable, Iterator, Optional
 
 PARENT_POLL_S = 1.0
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
@@ -56,4 +56,36 @@ def _start_worker(parent_pid: int, initializer: Optional[Callable[..., None]], i
         initializer(*initargs)
 
 
-__all__ = ["process_pool", "die_with_parent", "PARENT_POLL_S"]
+def default_workers() -> int:
+    """Worker processes when none are given: one per core this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def map_unordered(fn: Callable[..., Any], items: Iterable[Any], workers: int, args: tuple = (),
+                  initializer: Optional[Callable[..., None]] = None) -> Iterator[tuple[Any, Any]]:
+    """``(item, fn(item, *args))`` for every item, in the order they finish: in this process when
+    ``workers`` is 0, else in a ``process_pool`` of ``workers`` processes with at most two items per
+    worker in flight (results are handled as they come, never all held at once). When the consumer
+    stops or an item raises, the items not yet started are cancelled and the pool is shut down."""
+    if workers == 0:
+        for item in items:
+            yield item, fn(item, *args)
+        return
+    queue = list(items)
+    queue.reverse()
+    with process_pool(workers, initializer=initializer) as pool:  # workers die with this process
+        running = {}
+        try:
+            while queue or running:
+                while queue and len(running) < 2 * workers:
+                    item = queue.pop()
+                    running[pool.submit(fn, item, *args)] = item
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                for job in finished:
+                    yield running.pop(job), job.result()
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+
+
+__all__ = ["process_pool", "map_unordered", "default_workers", "die_with_parent", "PARENT_POLL_S"]

@@ -214,22 +214,22 @@ def _rasterizer():
     return _rasterize_triangles
 
 
-def voxelize_mesh_nmr(vertices, faces, resolution: int = NMR_VOXEL_RESOLUTION) -> np.ndarray:
-    """Solid voxels of a triangle mesh by the NMR benchmark's rules (SPEC section 5).
+def mesh_surface_voxels(vertices, faces, resolution: int = NMR_VOXEL_RESOLUTION) -> np.ndarray:
+    """The surface voxels of a triangle mesh by the NMR benchmark's rules (SPEC section 5), before
+    any fill.
 
     With ``u = (R - 1) * v + R / 2`` (world -> voxel units), per axis and per triangle not edge-on
     to that axis: every integer lattice line along the axis that meets the triangle (inclusive
     barycentric test) marks the voxel ``floor(u_axis)`` at the hit and its -1 neighbours in the two
-    other axes (the line is shared by four voxels); every vertex marks its voxel; then
-    ``fill_enclosed`` fills whatever the border cannot reach. Geometry outside the grid is dropped.
-    Computed in float64 (the benchmark's CUDA code used float32: a lattice line exactly on an
-    edge can differ).
+    other axes (the line is shared by four voxels); every vertex marks its voxel. Geometry outside
+    the grid is dropped. Computed in float64 (the benchmark's CUDA code used float32: a lattice line
+    exactly on an edge can differ).
 
     Args:
         vertices: (V, 3) float world coordinates (x, y, z). faces: (F, 3) int vertex indices.
         resolution: R (32 for the benchmark).
     Returns:
-        (R, R, R) bool in the NMR frame (``vox[i, j, k]``: i = +y, j = +x, k = -z).
+        (R, R, R) bool indexed (x, y, z) increasing (``xyz_to_nmr_voxels`` gives the NMR frame).
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
@@ -250,7 +250,21 @@ def voxelize_mesh_nmr(vertices, faces, resolution: int = NMR_VOXEL_RESOLUTION) -
         idx = np.floor(u).astype(np.int64)
         ok = ((idx >= 0) & (idx < r)).all(axis=1)
         surf[idx[ok, 0], idx[ok, 1], idx[ok, 2]] = 1
-    return np.ascontiguousarray(xyz_to_nmr_voxels(fill_enclosed(surf.astype(bool))))
+    return surf.astype(bool)
+
+
+def voxelize_mesh_nmr(vertices, faces, resolution: int = NMR_VOXEL_RESOLUTION) -> np.ndarray:
+    """Solid voxels of a triangle mesh by the NMR benchmark's rules (SPEC section 5): its surface
+    voxels (``mesh_surface_voxels``), then ``fill_enclosed`` fills whatever the border cannot reach.
+
+    Args:
+        vertices: (V, 3) float world coordinates (x, y, z). faces: (F, 3) int vertex indices.
+        resolution: R (32 for the benchmark).
+    Returns:
+        (R, R, R) bool in the NMR frame (``vox[i, j, k]``: i = +y, j = +x, k = -z).
+    """
+    surf = mesh_surface_voxels(vertices, faces, resolution)
+    return np.ascontiguousarray(xyz_to_nmr_voxels(fill_enclosed(surf)))
 
 
 def voxelize_sdf_protocol(values, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0, level: float = 0.0,

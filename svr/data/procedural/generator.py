@@ -17,7 +17,6 @@ import json
 import math
 import os
 import shutil
-from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Union
@@ -31,7 +30,7 @@ import renderer
 from renderer import NMR_NUM_VIEWS as NUM_VIEWS
 from sdfcommon.tooling.checks import check_int, check_shape
 from sdfcommon.tooling.outputs import remove_stale_temporaries, write_json, write_npz
-from sdfcommon.tooling.processes import process_pool
+from sdfcommon.tooling.processes import default_workers, map_unordered
 from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
 from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxelize_sdf_protocol
 from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
@@ -322,11 +321,6 @@ def is_procedural_dataset(root: Union[str, os.PathLike]) -> bool:
     return True
 
 
-def default_workers() -> int:
-    """Generation processes when none are given: one per core this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def dataset_shape(root: Union[str, os.PathLike], category_id: str, split: str, index: int) -> CSGShape:
     """The exact (analytic) shape of object ``index`` of a category and split of a generated
     dataset, rebuilt from its recorded seed (for the oracle baseline, ``svr.evaluation.baselines``)."""
@@ -473,24 +467,9 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
             (done_dir / chunk.marker).touch()
             bar.update(chunk.stop - chunk.start)
 
-        if workers == 0 or len(todo) <= 1:
-            for chunk in todo:
-                store(chunk, _make_chunk(chunk, settings))
-        else:
-            with process_pool(workers, initializer=_worker_init) as pool:  # workers die with this process
-                queue = list(reversed(todo))
-                running = {}
-                try:
-                    while queue or running:
-                        while queue and len(running) < 2 * workers:
-                            chunk = queue.pop()
-                            running[pool.submit(_make_chunk, chunk, settings)] = chunk
-                        finished, _ = wait(running, return_when=FIRST_COMPLETED)
-                        for job in finished:
-                            store(running.pop(job), job.result())
-                except BaseException:
-                    pool.shutdown(wait=False, cancel_futures=True)
-                    raise
+        for chunk, result in map_unordered(_make_chunk, todo, workers if len(todo) > 1 else 0, (settings,),
+                                           initializer=_worker_init):
+            store(chunk, result)
         bar.close()
         arrays.clear()  # closes the memory maps before the folder is renamed
         for cid, _ in settings.category_pairs():

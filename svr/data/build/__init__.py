@@ -1,0 +1,1 @@
+"""The mesh-to-NMR builder (``python -m svr.data.build``): layouts of mesh folders, loading and normalisation, Embree renders, robust voxels, the per-object work and the packing into the NMR format."""

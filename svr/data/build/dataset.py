@@ -1,0 +1,353 @@
+"""The build of an NMR-format folder from meshes (``build_dataset``): the plan (which meshes, which
+split), the per-object work in parallel processes (``build_object``: load, render, voxelise; a
+mesh that fails becomes a skipped manifest row with a one-line reason), each object's result
+written atomically into ``<out>/.build/objects`` so that a killed build continues where it stopped,
+then the packing into the files ``svr.data.nmr`` reads (``{cid}_{split}_images.npz`` /
+``_voxels.npz`` with their memory-mappable ``.npy`` copies, ``metadata.json``) and ``manifest.csv``,
+one row per mesh. The same input and settings give the same bytes, however the work was split,
+interrupted or ordered.
+"""
+from __future__ import annotations
+
+import collections
+import dataclasses
+import hashlib
+import json
+import shutil
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numba
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from sdfcommon.tooling.outputs import (atomic_path, atomic_write, remove_stale_temporaries, write_csv, write_json,
+                                       write_npz)
+from sdfcommon.tooling.processes import default_workers, map_unordered
+from svr.data.build.layouts import MeshObject, assign_splits, find_objects
+from svr.data.build.meshes import LoadedMesh, MeshError, MeshStatistics, analyse_mesh, load_mesh
+from svr.data.build.raycast import RayCaster
+from svr.data.build.rendering import render_mesh
+from svr.data.build.settings import BuildSettings
+from svr.data.build.voxels import VoxelResult, face_normals, solid_voxels
+from svr.data.nmr import SPLITS, nmr_file
+from svr.data.procedural.appearance import NMR_LIGHTING
+from svr.evaluation.voxels import voxels_to_sdf
+
+# Bump when the renders, voxels or file contents change: part of the plan a resumed build matches.
+BUILDER_VERSION = 1
+WORK_DIR = ".build"
+MANIFEST_FILE = "manifest.csv"
+METADATA_FILE = "metadata.json"
+# From this many objects on, the files of the categories and splits are packed in parallel.
+PARALLEL_PACK_OBJECTS = 1000
+MANIFEST_COLUMNS = ("category_id", "object_id", "split", "index", "source", "triangles", "watertight", "components",
+                    "inconsistent_edges", "leak_score", "status", "reason")
+
+
+@dataclass(frozen=True)
+class ObjectResult:
+    """One object's arrays (None when it was skipped) and its manifest row (without ``index``).
+
+    Attributes:
+        images: (V, 4, H, W) uint8. voxels: (R, R, R) bool, NMR frame. sdf: (N, N, N) float32 in
+            renderer.SDFGrid's layout over [-0.5, 0.5]^3, or None.
+    """
+
+    row: dict
+    images: Optional[np.ndarray] = None
+    voxels: Optional[np.ndarray] = None
+    sdf: Optional[np.ndarray] = None
+
+
+@dataclass(frozen=True)
+class BuildReport:
+    """What a build made: the folder, the objects built, skipped (reason -> count) and left out
+    (not named by the split lists), and whether it was already there."""
+
+    out: Path
+    built: int
+    skipped: dict
+    left_out: int
+    already_built: bool = False
+
+
+def _one_line(err: BaseException) -> str:
+    text = " ".join(str(err).split())
+    return text[:300] if isinstance(err, MeshError) else f"{type(err).__name__}: {text[:300]}"
+
+
+def build_mesh(mesh: LoadedMesh, settings: BuildSettings) -> tuple[MeshStatistics, np.ndarray, VoxelResult,
+                                                                     Optional[np.ndarray]]:
+    """Renders and voxelises one normalised mesh.
+
+    Returns:
+        (its statistics, (V, 4, H, W) uint8 images, its voxels, the (N, N, N) float32 SDF grid in
+        renderer.SDFGrid's layout over [-0.5, 0.5]^3 or None).
+    Raises:
+        MeshError when no camera sees the mesh.
+    """
+    stats, oriented = analyse_mesh(mesh.vertices, mesh.faces)
+    caster = RayCaster(mesh.vertices, mesh.faces)
+    normals = face_normals(mesh.vertices, mesh.faces)
+    images = render_mesh(mesh, caster, normals, settings.image_size, settings.supersample, settings.views,
+                         settings.distance, settings.elevation, NMR_LIGHTING)
+    if not images[:, 3].any():
+        raise MeshError("the mesh is invisible from every camera")
+    faces = oriented if settings.orient else mesh.faces
+    # The votes need the faces' orientation; the BVH does not (the same triangles either way).
+    vote_normals = face_normals(mesh.vertices, faces) if settings.orient else normals
+    vox = solid_voxels(caster, mesh.vertices, faces, vote_normals, settings.voxel_resolution, settings.ray_directions)
+    sdf = None
+    if settings.sdf_resolution:
+        fine = solid_voxels(caster, mesh.vertices, faces, vote_normals, settings.sdf_resolution,
+                            settings.ray_directions)
+        sdf = voxels_to_sdf(fine.voxels, pad=0)[0].astype(np.float32)
+    return stats, images, vox, sdf
+
+
+def build_object(obj: MeshObject, settings: BuildSettings, source: str) -> ObjectResult:
+    """Loads, renders and voxelises one mesh file; any failure gives a skipped row instead of an
+    exception.
+
+    Args:
+        obj: the mesh. settings: the build's settings. source: its path as the manifest shows it.
+    """
+    row = {"category_id": obj.category_id, "object_id": obj.object_id, "split": obj.split, "source": source}
+    try:
+        stats, images, vox, sdf = build_mesh(load_mesh(obj.path), settings)
+    except Exception as err:  # noqa: BLE001 - any failure of one mesh is that mesh's skipped row
+        row.update(status="skipped", reason=_one_line(err))
+        return ObjectResult(row)
+    row.update(triangles=stats.triangles, watertight=stats.watertight, components=stats.components,
+               inconsistent_edges=round(stats.inconsistent_edges, 6), leak_score=round(vox.leak_score, 6),
+               status="ok", reason="")
+    return ObjectResult(row, images, vox.voxels, sdf)
+
+
+def _object_files(work: Path, obj: MeshObject) -> tuple[Path, Path]:
+    """(arrays .npz, manifest row .json) of an object's result in the work folder."""
+    folder = work / "objects" / obj.category_id
+    return folder / f"{obj.object_id}.npz", folder / f"{obj.object_id}.json"
+
+
+def _build_and_store(job: tuple[MeshObject, str], settings: BuildSettings, work: Path) -> dict:
+    """A worker's job (a mesh and its manifest path): ``build_object``, then its arrays and row
+    written atomically (the row last: it marks the object done). Returns the row."""
+    obj, source = job
+    result = build_object(obj, settings, source)
+    arrays_file, row_file = _object_files(work, obj)
+    if result.images is not None:
+        arrays = {"images": result.images, "voxels": result.voxels}
+        if result.sdf is not None:
+            arrays["sdf"] = result.sdf
+        atomic_write(arrays_file, lambda f: np.savez(f, **arrays))
+    write_json(row_file, result.row)
+    return result.row
+
+
+def _worker_init() -> None:
+    # The processes already share the cores: numba's and torch's own threads would oversubscribe them.
+    numba.set_num_threads(1)
+    torch.set_num_threads(1)
+
+
+def _plan(settings: BuildSettings, input_dir: Path, objects: list[MeshObject], left_out: list[MeshObject],
+          pairs: list[tuple[str, str]]) -> dict:
+    record = {**settings.data_record(), "input": str(input_dir)}
+    return {"builder_version": BUILDER_VERSION, "settings": record, "categories": [list(p) for p in pairs],
+            "objects": [[o.category_id, o.object_id, str(o.path.relative_to(input_dir)), o.split] for o in objects],
+            "left_out": [[o.category_id, o.object_id] for o in left_out]}
+
+
+def _plan_key(plan: dict) -> str:
+    return hashlib.sha256(json.dumps(plan, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _check_out(out: Path, key: str, overwrite: bool) -> bool:
+    """Whether ``out`` already holds this build (True), after refusing to replace another one."""
+    meta_file = out / METADATA_FILE
+    if meta_file.is_file():
+        try:
+            meta = json.loads(meta_file.read_text())
+        except ValueError:
+            meta = {}
+        if meta.get("plan") == key:
+            return True
+        if not overwrite:
+            raise ValueError(f"out: {out} holds another build (other meshes or settings); choose another "
+                             f"folder or set overwrite=true to replace it")
+        meta_file.unlink()
+        for kind in ("images", "voxels", "sdf"):  # the old build's files, whatever its categories
+            for old in out.glob(f"*_*_{kind}.np[yz]"):
+                old.unlink()
+    elif any(out.glob("*_images.npz")) and not (out / WORK_DIR).is_dir() and not overwrite:
+        raise ValueError(f"out: {out} holds NMR files this builder did not make; choose another folder or "
+                         f"set overwrite=true")
+    return False
+
+
+@dataclass(frozen=True)
+class _PackJob:
+    """The files of one category and split: its objects built (in order) and where they go."""
+
+    category_id: str
+    split: str
+    objects: tuple[MeshObject, ...]
+    out: Path
+    work: Path
+
+
+def _pack_files(job: _PackJob, kinds: tuple) -> None:
+    """Writes ``{cid}_{split}_{kind}.npy`` (memory-mappable) then ``.npz`` for each kind."""
+    for kind, item, dtype in kinds:
+        npy = job.out / f"{job.category_id}_{job.split}_{kind}.npy"
+        with atomic_path(npy) as tmp:
+            arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=(len(job.objects), *item))
+            for i, obj in enumerate(job.objects):
+                with np.load(_object_files(job.work, obj)[0]) as z:
+                    arr[i] = z[kind]
+            arr.flush()
+            del arr
+        write_npz(job.out / f"{job.category_id}_{job.split}_{kind}.npz", arr_0=np.load(npy, mmap_mode="r"))
+
+
+def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str, str]], objects: list[MeshObject],
+          left_out: list[MeshObject], rows: dict, plan: dict, key: str, workers: int) -> dict:
+    """Writes the NMR files (each category and split by one of ``workers`` processes: compressing
+    them is most of the work), the manifest and metadata.json (last) from the per-object results."""
+    v, s, r = settings.views, settings.image_size, settings.voxel_resolution
+    kinds = [("images", (v, 4, s, s), np.uint8), ("voxels", (r, r, r), np.bool_)]
+    if settings.sdf_resolution:
+        n = settings.sdf_resolution
+        kinds.append(("sdf", (n, n, n), np.float32))
+    manifest, sizes, jobs = [], {}, []
+    for cid, _ in pairs:
+        sizes[cid] = {}
+        for split in SPLITS:
+            members = [o for o in objects if o.category_id == cid and o.split == split]
+            ok = [o for o in members if rows[(cid, o.object_id)]["status"] == "ok"]
+            sizes[cid][split] = len(ok)
+            jobs.append(_PackJob(cid, split, tuple(ok), out, work))
+            index = {o.object_id: i for i, o in enumerate(ok)}
+            for o in members:
+                manifest.append({**rows[(cid, o.object_id)], "index": index.get(o.object_id, "")})
+        for o in left_out:
+            if o.category_id == cid:
+                manifest.append({"category_id": cid, "object_id": o.object_id, "split": "",
+                                 "source": str(o.path.relative_to(Path(plan["settings"]["input"]))),
+                                 "status": "left_out", "reason": "no split list names it"})
+    jobs.sort(key=lambda j: -len(j.objects))  # the largest first: the last to finish is a small one
+    if sum(len(j.objects) for j in jobs) < PARALLEL_PACK_OBJECTS:
+        workers = 0  # starting processes would cost more than it saves
+    for _ in map_unordered(_pack_files, jobs, min(workers, len(jobs)), (tuple(kinds),)):
+        pass
+    write_csv(out / MANIFEST_FILE, manifest, MANIFEST_COLUMNS)
+    built = sum(1 for m in manifest if m["status"] == "ok")
+    meta = {
+        "format": "nmr-shapenet",
+        "source": "meshes",
+        "builder_version": BUILDER_VERSION,
+        "plan": key,
+        "categories": [list(p) for p in pairs],
+        "sizes": sizes,
+        "image_shape": [v, 4, s, s],
+        "voxel_shape": [r, r, r],
+        "objects": {"built": built, "skipped": sum(1 for m in manifest if m["status"] == "skipped"),
+                    "left_out": len(left_out)},
+        "settings": plan["settings"],
+        "lighting": dataclasses.asdict(NMR_LIGHTING),
+    }
+    write_json(out / METADATA_FILE, meta)
+    return meta
+
+
+def build_dataset(settings: BuildSettings) -> BuildReport:
+    """Builds ``settings.out`` from the meshes of ``settings.input`` (see the module docstring).
+
+    A build whose ``out`` already holds the same build does nothing; one killed before it finished
+    continues with the objects not yet done (their results are in ``<out>/.build``); one made with
+    other settings or meshes is refused unless ``overwrite``.
+
+    Returns:
+        BuildReport.
+    Raises:
+        FileNotFoundError / ValueError naming the setting or file (missing input, unknown category,
+        an out folder that holds something else).
+    """
+    input_dir = Path(settings.input).expanduser().resolve()
+    pairs, found = find_objects(input_dir, settings.layout, settings.categories)
+    split_lists = Path(settings.split_lists).expanduser() if settings.split_lists else None
+    objects, left_out = assign_splits(found, settings.seed, settings.split_ratios, split_lists)
+    plan = _plan(settings, input_dir, objects, left_out, pairs)
+    key = _plan_key(plan)
+    out = Path(settings.out).expanduser()
+    out.mkdir(parents=True, exist_ok=True)
+    if _check_out(out, key, settings.overwrite):
+        meta = json.loads((out / METADATA_FILE).read_text())
+        return BuildReport(out, meta["objects"]["built"], {}, meta["objects"]["left_out"], already_built=True)
+    work = out / WORK_DIR
+    plan_file = work / "plan.json"
+    if not (plan_file.is_file() and json.loads(plan_file.read_text()) == plan):
+        shutil.rmtree(work, ignore_errors=True)  # another build's leftovers
+        write_json(plan_file, plan)
+    remove_stale_temporaries(work)
+    sources = {(o.category_id, o.object_id): str(o.path.relative_to(input_dir)) for o in objects}
+    rows = {}
+    todo = []
+    for obj in objects:
+        arrays_file, row_file = _object_files(work, obj)
+        if row_file.is_file():
+            row = json.loads(row_file.read_text())
+            if row["status"] != "ok" or arrays_file.is_file():
+                rows[(obj.category_id, obj.object_id)] = row
+                continue
+        todo.append((obj, sources[(obj.category_id, obj.object_id)]))
+    workers = default_workers() if settings.workers is None else settings.workers
+    workers = min(workers, len(todo))
+    bar = tqdm(total=len(objects), initial=len(objects) - len(todo), unit="obj", desc=f"building {out.name}",
+               disable=not settings.progress, smoothing=0.1)
+    skipped = collections.Counter(r["reason"] for r in rows.values() if r["status"] != "ok")
+    died = ("the worker process died while building it (a crash in a mesh library, or out of memory); "
+            "removing its manifest row file in .build/objects retries it")
+
+    def record(obj: MeshObject, row: dict) -> None:
+        rows[(obj.category_id, obj.object_id)] = row
+        if row["status"] != "ok":
+            skipped[row["reason"]] += 1
+            bar.set_postfix(skipped=sum(skipped.values()), refresh=False)
+        bar.update(1)
+
+    try:
+        while todo:
+            try:
+                for (obj, _), row in map_unordered(_build_and_store, todo, workers, (settings, work),
+                                                   initializer=_worker_init):
+                    record(obj, row)
+                todo = []
+            except BrokenProcessPool:
+                # A worker died: the objects it may have held (those in flight) are built again one
+                # by one, each in a process of its own; one that kills that too is a skipped row.
+                todo = [job for job in todo if (job[0].category_id, job[0].object_id) not in rows]
+                suspects, todo = todo[:2 * workers], todo[2 * workers:]
+                for job in suspects:
+                    try:
+                        (_, row), = map_unordered(_build_and_store, [job], 1, (settings, work), initializer=_worker_init)
+                    except BrokenProcessPool:
+                        row = {"category_id": job[0].category_id, "object_id": job[0].object_id,
+                               "split": job[0].split, "source": job[1], "status": "skipped", "reason": died}
+                        write_json(_object_files(work, job[0])[1], row)
+                    record(job[0], row)
+    finally:
+        bar.close()
+    _pack(out, work, settings, pairs, objects, left_out, rows, plan, key,
+          default_workers() if settings.workers is None else settings.workers)
+    if not settings.keep_work:
+        shutil.rmtree(work, ignore_errors=True)
+    return BuildReport(out, sum(1 for r in rows.values() if r["status"] == "ok"), dict(skipped), len(left_out))
+
+
+__all__ = ["BUILDER_VERSION", "MANIFEST_COLUMNS", "ObjectResult", "BuildReport", "build_mesh", "build_object", "build_dataset"]
