@@ -5,7 +5,7 @@ wagons, SUVs, 30% with the roof off), "pickup" (single or crew cab, an open bed,
 canopy), "van" (one box: minivans, vans, buses), "truck" (a cab and a separate load 0.6-1 of the
 frame long: closed box, open box, tank or flat deck; one or two rear axles) and "open" (roadsters
 and jeeps: an open cockpit behind a windscreen frame, maybe a roll bar). Drawn per object: width
-0.26-0.66 of the length, wheel radius 0.045-0.2 and width 0.055-0.15, tyres in arches or standing
+0.26-0.66 of the length, wheel radius 0.045-0.19 and width 0.055-0.15, tyres in arches or standing
 0.02-0.08 out of the body, clearance 0.2-1.6 wheel radii, overhangs 0.02-0.26, sill-to-beltline
 height 0.06-0.34 (raised over the arches), cabin start, length (0.16 to the whole body), height
 0.06-0.52, windscreen and rear-window runs, tumblehome 0-0.14, bonnet and boot drops and lengths,
@@ -39,7 +39,7 @@ _RANGES = {
     "pickup":    ((0.32, 0.62), (0.065, 0.19), (0.4, 1.6), (0.1, 0.28), (0.09, 0.24), (0.0, 0.08)),
     "van":       ((0.26, 0.6), (0.045, 0.12), (0.2, 0.7), (0.08, 0.34), (0.14, 0.52), (0.0, 0.06)),
     "truck":     ((0.26, 0.52), (0.055, 0.12), (0.4, 1.6), (0.06, 0.16), (0.16, 0.46), (0.0, 0.05)),
-    "open":      ((0.36, 0.66), (0.055, 0.2), (0.3, 1.6), (0.08, 0.28), (0.07, 0.2), (0.0, 0.02)),
+    "open":      ((0.36, 0.66), (0.055, 0.18), (0.3, 1.6), (0.08, 0.28), (0.07, 0.17), (0.0, 0.02)),
 }
 
 
@@ -140,7 +140,8 @@ def sample(rng: np.random.Generator, style: str) -> CarParams:
         cargo_w, well = uniform(rng, 0.85, 1.12), uniform(rng, 0.06, 0.2)
         cargo_len = uniform(rng, 0.6, 1.0)
     else:  # open
-        z0, z1 = uniform(rng, -0.22, 0.0), uniform(rng, 0.08, 0.36)
+        z0 = uniform(rng, -0.22, 0.0)
+        z1 = max(uniform(rng, 0.08, 0.36), z0 + 0.22)  # room for the seats behind the windscreen frame
         runs = uniform(rng, 0.02, 0.12), 0.0
         nose_drop, nose_len = uniform(rng, 0.0, 0.08), uniform(rng, 0.1, 0.3)
         tail_drop, tail_len = uniform(rng, 0.0, 0.05), uniform(rng, 0.05, 0.2)
@@ -211,7 +212,7 @@ def build(p: CarParams) -> CSGShape:
         zw0 = p.cargo_z0 if p.cargo == "bed" else z0 + 0.02
         zw1 = HALF_LEN - p.wall if p.cargo == "bed" else z1
         lowest = yt - p.well
-        b.box_between((-w2 + p.wall, floor, zw0), (w2 - p.wall, yt + 0.02, zw1), op="subtract")
+        b.box_between((-w2 + p.wall, lowest, zw0), (w2 - p.wall, yt + 0.02, zw1), op="subtract")
     if p.open_cab:  # the glass out: the cabin's hollow reaches down into the body
         floor = max(yt - p.sink, arch_top + MIN_PART, yb + MIN_PART)
         lowest = min(lowest, floor)

@@ -186,6 +186,8 @@ def sample(rng: np.random.Generator, style: str) -> VesselParams:
         bow = 0.0
     else:
         raise ValueError(f"unknown vessel style {style!r}; expected one of {STYLES}")
+    if tunnel_w > 0:  # each hull at least 0.075 wide
+        tunnel_w = min(tunnel_w, 1.0 - 0.15 / beam)
     return VesselParams(
         style=style, length=length, beam=beam, depth=depth, bow=bow, flare=flare, stem=stem, v_rise=v_rise,
         stern_taper=stern_taper, tiers=tiers, funnels=funnels, masts=masts, turrets=turrets, cargo=cargo,
@@ -368,7 +370,8 @@ def _well(p: VesselParams) -> tuple[float, float, float] | None:
     else:
         return None
     lowest = max(wall, depth * p.v_rise * 0.75 + 0.06, depth * p.tunnel_h + 0.06 if p.tunnel_w > 0 else 0.0)
-    return z0, z1, min(max(p.floor * depth, lowest), depth - 0.03)
+    floor = max(p.floor * depth, lowest)
+    return (z0, z1, floor) if floor < depth - 0.03 or p.style == "rowboat" else None  # (none in too shallow a hull)
 
 
 def _base_y(p: VesselParams, z0: float, z1: float) -> float:
