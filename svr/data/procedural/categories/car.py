@@ -5,12 +5,16 @@ wagons, SUVs, 30% with the roof off), "pickup" (single or crew cab, an open bed,
 canopy), "van" (one box: minivans, vans, buses), "truck" (a cab and a separate load 0.6-1 of the
 frame long: closed box, open box, tank or flat deck; one or two rear axles) and "open" (roadsters
 and jeeps: an open cockpit behind a windscreen frame, maybe a roll bar). Drawn per object: width
-0.28-0.64 of the length, wheel radius 0.045-0.18 and width 0.055-0.15, tyres in arches or standing
-0.02-0.08 out of the body, clearance 0.2-1.5 wheel radii, overhangs 0.02-0.26, sill-to-beltline
-height 0.06-0.3 (raised over the arches), cabin start, length (0.16 to the whole body), height
-0.06-0.48, windscreen and rear-window runs, tumblehome 0-0.12, bonnet and boot drops and lengths,
-body rounding 0.01-0.09, and optional roof racks or roof boxes, spoilers (a lip or a wing on posts),
-a spare wheel on the tail and a bull bar.
+0.26-0.66 of the length, wheel radius 0.045-0.19 and width 0.055-0.15, tyres in arches or standing
+0.02-0.08 out of the body, clearance 0.2-1.6 wheel radii, overhangs 0.02-0.26, sill-to-beltline
+height 0.06-0.34 (raised over the arches), cabin start, length (0.16 to the whole body), height
+0.06-0.52, windscreen and rear-window runs, tumblehome 0-0.14, bonnet and boot drops and lengths,
+body rounding 0.01-0.09, bed and cockpit wells 0.05-0.2 deep with walls 0.055-0.12, in 55% of
+closed cabins the glass out (side windows through a hollow cabin, pillars and roof 0.055-0.1, the
+hollow 0-0.25 into the body), in 85% a hollow under the floor open below (skirts 0.055-0.16, 0.2-1
+of the room up to the floor; behind the glass, in half, the cabin hollow down to it), and optional
+roof racks or roof boxes, spoilers (a lip or a wing on posts), a spare wheel on the tail and a bull
+bar.
 """
 from __future__ import annotations
 
@@ -30,12 +34,12 @@ THICK = 0.06  # walls, slabs, posts: a little over MIN_PART
 # Per style: (lo, hi) of the draws that differ between styles.
 _RANGES = {
     #               width         wheel_r        clear (x r)  body_h        cab_h         tumble
-    "sedan":     ((0.34, 0.6), (0.05, 0.11), (0.2, 0.6), (0.06, 0.2), (0.06, 0.17), (0.01, 0.12)),
-    "hatchback": ((0.36, 0.64), (0.055, 0.14), (0.25, 1.3), (0.08, 0.26), (0.08, 0.24), (0.01, 0.11)),
-    "pickup":    ((0.34, 0.58), (0.065, 0.17), (0.4, 1.4), (0.1, 0.24), (0.09, 0.2), (0.0, 0.06)),
-    "van":       ((0.28, 0.56), (0.045, 0.11), (0.2, 0.6), (0.08, 0.3), (0.14, 0.48), (0.0, 0.04)),
-    "truck":     ((0.28, 0.5), (0.055, 0.11), (0.4, 1.5), (0.06, 0.14), (0.16, 0.42), (0.0, 0.04)),
-    "open":      ((0.38, 0.64), (0.055, 0.18), (0.3, 1.5), (0.08, 0.24), (0.07, 0.17), (0.0, 0.0)),
+    "sedan":     ((0.32, 0.64), (0.05, 0.12), (0.2, 0.7), (0.06, 0.24), (0.06, 0.2), (0.01, 0.14)),
+    "hatchback": ((0.34, 0.66), (0.055, 0.16), (0.25, 1.5), (0.08, 0.3), (0.07, 0.28), (0.01, 0.13)),
+    "pickup":    ((0.32, 0.62), (0.065, 0.19), (0.4, 1.6), (0.1, 0.28), (0.09, 0.24), (0.0, 0.08)),
+    "van":       ((0.26, 0.6), (0.045, 0.12), (0.2, 0.7), (0.08, 0.34), (0.14, 0.52), (0.0, 0.06)),
+    "truck":     ((0.26, 0.52), (0.055, 0.12), (0.4, 1.6), (0.06, 0.16), (0.16, 0.46), (0.0, 0.05)),
+    "open":      ((0.36, 0.66), (0.055, 0.18), (0.3, 1.6), (0.08, 0.28), (0.07, 0.17), (0.0, 0.02)),
 }
 
 
@@ -79,6 +83,13 @@ class CarParams:
     bullbar: bool
     rollbar: bool
     canopy: bool         # a pickup's bed under a cover as high as the cab
+    wall: float = THICK  # the walls of a bed or an open cockpit
+    open_cab: bool = False  # the glass out: side windows through the cabin, hollow inside
+    pillar: float = THICK  # an open cabin's roof and pillars
+    sink: float = 0.0    # how far an open cabin's hollow reaches down into the body
+    under: float = 0.0   # a hollow under the floor between the axles, fraction of the room there (0: none)
+    skirt: float = THICK  # the body's walls round that hollow
+    shell: bool = False  # a closed cabin hollow too, open to the hollow under the floor: the car a shell
 
 
 def sample(rng: np.random.Generator, style: str) -> CarParams:
@@ -90,6 +101,7 @@ def sample(rng: np.random.Generator, style: str) -> CarParams:
     nose_drop = nose_len = tail_drop = tail_len = 0.0
     rear_axles, cargo, cargo_z0, cargo_h, cargo_w, cargo_len, well = 1, "none", 0.0, 0.0, 0.0, 1.0, 0.0
     rollbar = False
+    wall = uniform(rng, MIN_PART, 0.12)
     if style == "sedan":
         z0, z1 = uniform(rng, -0.32, 0.0), uniform(rng, 0.05, 0.38)
         runs = uniform(rng, 0.08, 0.35), uniform(rng, 0.04, 0.35)
@@ -97,21 +109,21 @@ def sample(rng: np.random.Generator, style: str) -> CarParams:
         tail_drop, tail_len = uniform(rng, 0.0, 0.08), uniform(rng, 0.05, 0.25)
         of, orr = uniform(rng, 0.05, 0.22), uniform(rng, 0.05, 0.26)
         if chance(rng, 0.4):  # a convertible
-            cargo, well, rollbar = "cockpit", uniform(rng, 0.05, 0.12), chance(rng, 0.3)
+            cargo, well, rollbar = "cockpit", uniform(rng, 0.05, 0.16), chance(rng, 0.3)
     elif style == "hatchback":
         z0, z1 = uniform(rng, -0.32, -0.05), HALF_LEN - uniform(rng, 0.0, 0.18)
         runs = uniform(rng, 0.07, 0.3), uniform(rng, 0.0, 0.28)
         nose_drop, nose_len = uniform(rng, 0.0, 0.09), uniform(rng, 0.08, 0.45)
         of, orr = uniform(rng, 0.03, 0.2), uniform(rng, 0.02, 0.18)
         if chance(rng, 0.3):  # roof off
-            cargo, well, rollbar = "cockpit", uniform(rng, 0.05, 0.12), chance(rng, 0.6)
+            cargo, well, rollbar = "cockpit", uniform(rng, 0.05, 0.16), chance(rng, 0.6)
     elif style == "pickup":
         z0 = uniform(rng, -0.28, -0.08)
         z1 = z0 + uniform(rng, 0.18, 0.42)
         runs = uniform(rng, 0.06, 0.18), uniform(rng, 0.0, 0.03)
         nose_drop, nose_len = uniform(rng, 0.0, 0.04), uniform(rng, 0.1, 0.25)
         of, orr = uniform(rng, 0.04, 0.16), uniform(rng, 0.04, 0.2)
-        cargo, cargo_z0, well = "bed", z1 + uniform(rng, 0.0, 0.04), uniform(rng, 0.06, 0.12)
+        cargo, cargo_z0, well = "bed", z1 + uniform(rng, 0.0, 0.04), uniform(rng, 0.06, 0.2)
     elif style == "van":
         z0, z1 = -HALF_LEN + uniform(rng, 0.0, 0.32), HALF_LEN - uniform(rng, 0.0, 0.04)
         runs = uniform(rng, 0.02, 0.35), uniform(rng, 0.0, 0.18)
@@ -128,12 +140,13 @@ def sample(rng: np.random.Generator, style: str) -> CarParams:
         cargo_w, well = uniform(rng, 0.85, 1.12), uniform(rng, 0.06, 0.2)
         cargo_len = uniform(rng, 0.6, 1.0)
     else:  # open
-        z0, z1 = uniform(rng, -0.22, 0.0), uniform(rng, 0.08, 0.36)
+        z0 = uniform(rng, -0.22, 0.0)
+        z1 = max(uniform(rng, 0.08, 0.36), z0 + 0.22)  # room for the seats behind the windscreen frame
         runs = uniform(rng, 0.02, 0.12), 0.0
         nose_drop, nose_len = uniform(rng, 0.0, 0.08), uniform(rng, 0.1, 0.3)
         tail_drop, tail_len = uniform(rng, 0.0, 0.05), uniform(rng, 0.05, 0.2)
         of, orr = uniform(rng, 0.02, 0.16), uniform(rng, 0.02, 0.18)
-        cargo, well, rollbar = "cockpit", uniform(rng, 0.05, 0.12), chance(rng, 0.5)
+        cargo, well, rollbar = "cockpit", uniform(rng, 0.05, 0.16), chance(rng, 0.5)
     closed = cargo != "cockpit"
     roof = (str(rng.choice(["none", "rack", "pod", "pod"] if style == "van" else ["none", "rack", "pod"]))
             if closed and style != "truck" else "none")
@@ -152,7 +165,10 @@ def sample(rng: np.random.Generator, style: str) -> CarParams:
         spoiler=spoiler, spoiler_h=uniform(rng, 0.03, 0.1),
         spare=style in ("hatchback", "van", "open") and chance(rng, 0.4), spare_x=uniform(rng, -0.1, 0.1),
         bullbar=style in ("hatchback", "pickup", "truck", "open") and chance(rng, 0.35), rollbar=rollbar,
-        canopy=cargo == "bed" and chance(rng, 0.3))
+        canopy=cargo == "bed" and chance(rng, 0.3), wall=wall,
+        open_cab=closed and chance(rng, 0.55), pillar=uniform(rng, MIN_PART, 0.1), sink=uniform(rng, 0.0, 0.25),
+        under=uniform(rng, 0.2, 1.0) if chance(rng, 0.85) else 0.0, skirt=uniform(rng, MIN_PART, 0.16),
+        shell=chance(rng, 0.5))
 
 
 def build(p: CarParams) -> CSGShape:
@@ -172,6 +188,8 @@ def build(p: CarParams) -> CSGShape:
         yt = max(yt, 2 * rw + ARCH_LIFT + ARCH_GAP + MIN_PART)
     if p.cargo in ("bed", "cockpit"):
         yt = max(yt, 2 * rw + ARCH_LIFT + ARCH_GAP + p.well + THICK)
+    floor = lowest = yt  # an open cabin's floor; the lowest any hollow from above reaches
+    arch_top = 2 * rw + ARCH_LIFT + ARCH_GAP if arches else yb
     z0, z1, ch = p.cab_z0, p.cab_z1, p.cab_h
     if p.nose_drop > 0:
         z0 = max(z0, -HALF_LEN + p.nose_len + 0.05)
@@ -190,10 +208,19 @@ def build(p: CarParams) -> CSGShape:
     if arches:
         for z in axles:
             b.cylinder((0, rw + ARCH_LIFT, z), rw + ARCH_GAP, w2 + 0.05, ALONG_X, op="subtract")
-    if p.cargo in ("bed", "cockpit"):  # an open bed or cockpit: a well with walls THICK all round
+    if p.cargo in ("bed", "cockpit"):  # an open bed or cockpit: a well with walls all round
         zw0 = p.cargo_z0 if p.cargo == "bed" else z0 + 0.02
-        zw1 = HALF_LEN - THICK if p.cargo == "bed" else z1
-        b.box_between((-w2 + THICK, yt - p.well, zw0), (w2 - THICK, yt + 0.02, zw1), op="subtract")
+        zw1 = HALF_LEN - p.wall if p.cargo == "bed" else z1
+        lowest = yt - p.well
+        b.box_between((-w2 + p.wall, lowest, zw0), (w2 - p.wall, yt + 0.02, zw1), op="subtract")
+    if p.open_cab:  # the glass out: the cabin's hollow reaches down into the body
+        floor = max(yt - p.sink, arch_top + MIN_PART, yb + MIN_PART)
+        lowest = min(lowest, floor)
+    room = min(lowest, yt - p.nose_drop, yt - p.tail_drop) - MIN_PART - yb
+    under_top = yb + p.under * room if p.under > 0 and room > 0.03 else None
+    if under_top is not None:  # the body a shell over a hollow under the floor, open below
+        b.box_between((-w2 + p.skirt, yb - 0.01, -HALF_LEN + p.skirt), (w2 - p.skirt, yb + p.under * room,
+                                                                        HALF_LEN - p.skirt), op="subtract")
 
     if p.cargo != "cockpit":  # the greenhouse: its window cuts run from its base up, clear of the body
         b.part("cabin")
@@ -208,10 +235,22 @@ def build(p: CarParams) -> CSGShape:
             cut_beyond(b, (0, yt, z1), (0, yt + ch + 0.1, z1 - run_r * (1 + 0.1 / ch)), X, (0, 0.3, 1), w2,
                        depth=run_r * ch / np.hypot(run_r, ch) + 0.06, margin=0.0)
         wz0, wz1 = z0 + run_f * 0.75 + 0.03, z1 - run_r * 0.75 - 0.03
-        if wz1 - wz0 > 0.1:  # side windows: shallow recesses that outline the glass in a render
+        if wz1 - wz0 > 0.1:  # side windows: shallow recesses that outline the glass in a render, or openings
             b.part("windows")
-            for s in (-1, 1):
-                b.box((s * cw, yt + ch * 0.5, (wz0 + wz1) / 2), (0.012, ch * 0.27, (wz1 - wz0) / 2), op="subtract")
+            if p.open_cab:
+                b.box((0, yt + ch * 0.5, (wz0 + wz1) / 2), (cw + 0.01, ch * 0.27, (wz1 - wz0) / 2), op="subtract")
+            else:
+                for s in (-1, 1):
+                    b.box((s * cw, yt + ch * 0.5, (wz0 + wz1) / 2), (0.012, ch * 0.27, (wz1 - wz0) / 2),
+                          op="subtract")
+        if p.open_cab and ch > p.pillar + 0.04 and wz1 - wz0 > 0.1:  # hollow inside under a roof and pillars
+            b.part("interior")
+            b.box_between((-cw + p.pillar, floor, z0 + p.pillar), (cw - p.pillar, yt + ch - p.pillar, z1 - p.pillar),
+                          op="subtract")
+        elif p.shell and not p.open_cab and under_top is not None and ch > p.pillar + 0.04 and wz1 - wz0 > 0.1:
+            # behind the glass the cabin is hollow down to the hollow under the floor (unseen from outside)
+            b.box_between((-cw + p.pillar, under_top - 0.02, z0 + run_f + p.pillar),
+                          (cw - p.pillar, yt + ch - p.pillar, z1 - run_r - p.pillar), op="subtract")
 
     if p.canopy:  # a cover over the bed
         b.part("cargo")
