@@ -1,27 +1,35 @@
-"""The procedural phone: screen to -z, in five styles. "slab": a smartphone 0.3-0.75 of its height
-wide and 0.06-0.2 thick, edge rounding up to half its thickness, a recessed screen with drawn
-bezels, a camera bump (none, square, round or a full-width strip; 0.1-0.45 of the width, standing
-out 0.0275-0.05) and maybe a side button; "candybar": a thicker phone (0.1-0.28) with a screen over
-a keypad panel (0.25-0.5 of the face) and maybe an antenna; "slider": two slabs, the screen half slid
-up (or sideways) by 0-0.55 of its length off the keypad half; "flip": a keypad half and a screen lid
-on a hinge cylinder, closed (the lid on the keypad) or open at 140-180 degrees; "desk": a desk
-telephone, a base 0.55-1.0 wide, 0.4-0.95 deep and 0.08-0.3 high whose top slopes down to the
-front, a keypad and maybe a display on the slope, and a handset resting on two cradle blocks (a
-hole under it) along the left side or across the back, maybe with a cord looping to the base, or a
-cordless one standing in a dock. The hand-held styles stand upright or lean back, by 0.05-0.45 rad
-in a dock (a block or a round foot) or by up to 0.65 rad on an easel strut.
+"""The procedural phone: screen to -z, in six styles. "slab": a smartphone 0.28-0.8 of its height
+wide and 0.06-0.26 thick (log-uniform), edge rounding up to half its thickness, a recessed screen
+with drawn bezels, a camera bump (none, square, round or a full-width strip; 0.1-0.5 of the width,
+standing out 0.0275-0.08), maybe a side button, in 40% a wallet case's cover (0.055-0.1 thick) open at 0.25-3.14 rad about
+the left edge, and in 50% a battery pack (0.055-0.16 thick, 0.3-0.8
+of the height, 0.5-0.95 of the width) on the back, and in 50% a back sloping in to lose 0.1-0.6
+of the thickness at the top (slab and candybar); "candybar": a thicker phone (0.09-0.32) with a
+screen over a keypad (0.25-0.5 of the face; a flush panel or a block standing out 0.045-0.1), maybe
+an antenna and a battery pack; "slider": two slabs (0.06-0.17 and 0.055-0.16 thick), the screen half
+slid up (or sideways) by 0-0.55 of its length off the keypad half; "flip": a keypad half and a
+screen lid on a hinge cylinder, closed or open at any angle from 0.4 rad to flat; "handset": a
+cordless handset 0.18-0.4 wide, its ear end (0.25-0.51 of the length, 0.06-0.2 thick) bent to the
+front by 0-0.45 rad, maybe an antenna; "desk": a desk telephone, a base 0.5-1.0 wide, 0.35-1.0 deep
+and 0.06-0.35 high whose top slopes down to the front, a keypad and maybe a display on the slope,
+and a handset resting on two cradle blocks (a hole under it) along the left side or across the
+back, maybe with a cord looping to the base, or a cordless one standing in a dock. The hand-held
+styles stand tilted back by 0-0.3 rad, or lean by 0.05-0.5 rad in a dock (a block or a round foot,
+in 50% with a back rest 0.25-0.7 of the phone's height) or by up to 0.7 rad on an easel strut
+(0.055-0.11 thick).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import uniform, chance, X, ALONG_X, ALONG_Z
+from svr.data.procedural.categories.blocks import uniform, chance, cut_beyond, X, Y, Z, ALONG_X, ALONG_Z
 
-STYLES = ("slab", "candybar", "slider", "flip", "desk")
+STYLES = ("slab", "candybar", "slider", "flip", "desk", "handset")
 THICK = 0.06  # the thinnest slab, strut or key: a little over MIN_PART
 
 
@@ -65,26 +73,47 @@ class PhoneParams:
     cradle_h: float
     display: bool
     cord: bool
+    battery: float = 0.0     # slab / candybar: a battery pack's thickness on the back (0: none)
+    battery_h: float = 0.5   # its height (fraction of the body) and width (fraction of the width)
+    battery_w: float = 0.8
+    strut_t: float = THICK   # easel: the strut's thickness
+    dock_back: float = 0.0   # dock: a back rest's height (fraction of the phone's; 0: none)
+    dock_w: float = 0.5      # dock: the block's half width over the phone's width
+    bend: float = 0.0        # handset: the ear end's tilt to the front (radians)
+    ear_thick: float = 0.1   # handset: the ear end's thickness
+    keys_raised: float = 0.0  # candybar: how far a keypad block stands out of the front (0: a flush panel)
+    cover: float = 0.0       # slab: a wallet case's cover swung open about the left edge (radians; 0: none)
+    cover_t: float = 0.06
+    taper: float = 0.0       # slab / candybar: the share of the thickness the back loses towards the top (a wedge)
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
 
 def sample(rng: np.random.Generator, style: str) -> PhoneParams:
     u = lambda lo, hi: uniform(rng, lo, hi)  # noqa: E731
-    width = u(0.3, 0.75)
+    lu = lambda lo, hi: _log_uniform(rng, lo, hi)  # noqa: E731
+    width = u(0.28, 0.8)
     if style == "slab":
-        thick = u(0.06, 0.2)
+        thick = lu(0.06, 0.26)
     elif style == "candybar":
-        thick, width = u(0.1, 0.28), u(0.3, 0.56)
+        thick, width = lu(0.09, 0.32), u(0.28, 0.56)
     elif style == "desk":
-        width, thick = u(0.55, 1.0), u(0.08, 0.3)
+        width, thick = u(0.5, 1.0), lu(0.06, 0.35)
+    elif style == "handset":
+        width = u(0.18, 0.4)
+        thick = min(lu(0.07, 0.24), 0.75 * width)
     else:
-        thick = u(0.06, 0.14)
+        thick = lu(0.06, 0.17)
     stand = "none"
-    if style in ("slab", "candybar", "slider"):
+    if style in ("slab", "candybar", "slider", "handset"):
         stand = str(rng.choice(["none", "none", "dock", "dock", "easel"]))
-    elif style == "flip" and chance(rng, 0.2):
+    elif style == "flip" and chance(rng, 0.25):
         stand = "dock"
-    opening = 0.0 if (style == "flip" and chance(rng, 0.25)) else u(math.radians(140), math.pi)
-    stand_h, antenna, antenna_h = u(0.06, 0.16), style == "candybar" and chance(rng, 0.5), u(0.05, 0.16)
+    opening = 0.0 if (style == "flip" and chance(rng, 0.2)) else u(0.4, math.pi)
+    stand_h, antenna = u(0.06, 0.2), style in ("candybar", "handset") and chance(rng, 0.5)
+    antenna_h = u(0.05, 0.2)
     slide, lid_frac, sideways = u(0.0, 0.55), u(0.7, 1.05), chance(rng, 0.25)
     # the length that keeps the whole within about 1 (a dock, an antenna, a slid or opened half add to it)
     room = 1.0 - (stand_h - 0.04 if stand == "dock" else 0.0) - (antenna_h if antenna else 0.0)
@@ -92,22 +121,48 @@ def sample(rng: np.random.Generator, style: str) -> PhoneParams:
         room /= max(1.0, slide + (1 + lid_frac) / 2)
     elif style == "flip":
         room /= 0.52 * (1 + lid_frac) if opening > 0 else 0.52 * max(1.0, lid_frac)
-    return PhoneParams(
+    cover = u(0.25, math.pi) if style == "slab" and chance(rng, 0.4) else 0.0
+    if cover > math.pi / 2:  # a cover opened past square widens the whole: keep it within about 1
+        width = min(width, 1.0 / (1.0 - math.cos(cover)))
+    if stand == "none":
+        lean = u(0.0, 0.3)
+    else:
+        lean = u(0.05, 0.5 if stand == "dock" else 0.7)
+    return _fit(PhoneParams(
         style=style, height=room, width=width, thick=thick, rounding=u(0.0, 1.0),
         bezel=u(0.02, 0.12), screen_top=u(0.03, 0.16), screen_bottom=u(0.03, 0.18),
-        camera=str(rng.choice(["none", "square", "round", "strip"])), camera_size=u(0.1, 0.45),
-        camera_h=u(0.0275, 0.05),
+        camera=str(rng.choice(["none", "square", "round", "strip"])), camera_size=u(0.1, 0.5),
+        camera_h=u(0.0275, 0.08),
         camera_x=u(-1.0, 1.0), button=chance(rng, 0.5), keypad_frac=u(0.3, 0.6),
         antenna=antenna, antenna_h=antenna_h,
-        slide=slide, sideways=sideways, lid_frac=lid_frac, lid_thick=u(0.055, 0.12),
-        opening=opening, hinge_r=u(0.035, 0.06),
-        stand=stand, lean=u(0.05, 0.45 if stand == "dock" else 0.65) if stand != "none" else 0.0,
-        stand_depth=u(0.12, 0.45), stand_h=stand_h,
-        dock_round=chance(rng, 0.4), strut_w=u(0.15, 0.8), strut_at=u(0.35, 0.7),
-        depth=u(0.4, 0.95), slope=u(0.1, 0.6), ledge=u(0.25, 0.4),
+        slide=slide, sideways=sideways, lid_frac=lid_frac, lid_thick=lu(0.055, 0.16),
+        opening=opening, hinge_r=u(0.035, 0.07),
+        stand=stand, lean=lean, stand_depth=u(0.12, 0.5), stand_h=stand_h,
+        dock_round=chance(rng, 0.4), strut_w=u(0.15, 0.85), strut_at=u(0.3, 0.75),
+        depth=u(0.35, 1.0), slope=u(0.1, 0.6), ledge=u(0.25, 0.4),
         layout=str(rng.choice(["side", "across", "upright"])),
-        handset_len=u(0.7, 0.95), handset_r=u(0.035, 0.055), cradle_h=u(0.04, 0.1), display=chance(rng, 0.5),
-        cord=chance(rng, 0.5))
+        handset_len=u(0.65, 0.95), handset_r=u(0.03, 0.07), cradle_h=u(0.04, 0.12), display=chance(rng, 0.5),
+        cord=chance(rng, 0.5),
+        battery=u(0.055, 0.16) if style in ("slab", "candybar") and chance(rng, 0.5) else 0.0,
+        battery_h=u(0.3, 0.8), battery_w=u(0.5, 0.95), strut_t=u(0.055, 0.11),
+        dock_back=u(0.25, 0.7) if chance(rng, 0.5) else 0.0, dock_w=u(0.3, 0.65),
+        bend=u(0.0, 0.45), ear_thick=lu(0.06, 0.2),
+        keys_raised=u(0.045, 0.1) if style == "candybar" and chance(rng, 0.5) else 0.0,
+        cover=cover, cover_t=u(0.055, 0.1),
+        taper=u(0.1, 0.6) if style in ("slab", "candybar") and chance(rng, 0.5) else 0.0))
+
+
+def _fit(p: PhoneParams) -> PhoneParams:
+    """The record with its length and width shrunk until the raw shape's box (its primitives' box,
+    which contains it) is at most about 1 on every side: an open cover, a lean and a strut add up."""
+    for _ in range(4):
+        lo, hi = build(p).bounds
+        size = float(np.max(np.asarray(hi) - np.asarray(lo)))
+        if size <= 1.06:
+            break
+        f = 1.04 / size
+        p = dataclasses.replace(p, height=p.height * f, width=p.width * f if p.style != "desk" else p.width)
+    return p
 
 
 class _Placed:
@@ -156,11 +211,28 @@ def _hand_held(b: CSGBuilder, p: PhoneParams) -> None:
         _slab(f, p, w, h, t, 0.0, -t / 2, scr)
         if p.style == "candybar":
             b.part("keys")
-            _keypad(f, w - 0.12, 0.05, keypad_top, -t / 2)
+            if p.keys_raised > 0:  # a keypad block standing out of the front
+                f.box((0, (0.05 + keypad_top) / 2, -t / 2 - p.keys_raised / 2 + 0.01),
+                      ((w - 0.1) / 2, (keypad_top - 0.05) / 2, p.keys_raised / 2 + 0.01), rounding=0.01)
+            else:
+                _keypad(f, w - 0.12, 0.05, keypad_top, -t / 2)
             if p.antenna:
                 b.part("body")
                 f.cylinder((w / 2 - 0.08, h + p.antenna_h / 2 - 0.01, 0.0), 0.035, p.antenna_h / 2 + 0.01, np.eye(3))
         back = t / 2
+        wedge = min(p.taper * t, t - THICK)
+        if wedge > 0.01:  # the back slopes in towards the top
+            cut_beyond(b, f.at((0, -0.05, back + wedge * 0.05 / h)), f.at((0, h + 0.005, back - wedge)),
+                       f.rot @ np.array(X), f.rot @ np.array(Z), w / 2 + 0.05, depth=0.3, margin=0.0)
+        if p.cover > 0:  # a wallet case: its cover hinged on the left front edge, swung open to the front
+            b.part("cover")
+            lid = _Placed(b, f.rot @ rotation(Y, p.cover), f.at((-w / 2, 0.0, -t / 2)))
+            lid.box((w / 2, h / 2, -p.cover_t / 2 + 0.01), (w / 2, h / 2, p.cover_t / 2), rounding=0.01)
+        if p.battery > 0:  # a battery pack (or a battery case) on the back's lower part
+            b.part("body")
+            bh = h * p.battery_h
+            f.box((0, bh / 2 + 0.02, back + p.battery / 2 - 0.01), (w * p.battery_w / 2, bh / 2, p.battery / 2 + 0.01),
+                  rounding=0.015)
     elif p.style == "slider":
         tl = p.lid_thick
         _slab(f, p, w, h, t, 0.0, -t / 2, None)
@@ -175,6 +247,20 @@ def _hand_held(b: CSGBuilder, p: PhoneParams) -> None:
         dy = (0.0 if p.sideways else p.slide * h) + (h - hl) / 2
         f2 = _Placed(b, f.rot, f.at((dx, 0.0, 0.0)))
         _slab(f2, p, w, hl, tl, dy, -t / 2 - tl + 0.005, (p.bezel * w / 2 + 0.02, 0.04, 0.06))
+        back = t / 2
+    elif p.style == "handset":  # a cordless handset: keypad end, its ear end bent to the front at the back edge
+        top = h * (0.25 + 0.25 * p.lid_frac)
+        low = h - top
+        _slab(f, p, w, low + 0.02, t, 0.0, -t / 2, None)
+        b.part("keys")
+        _keypad(f, w - 0.08, 0.06, low * p.keypad_frac + 0.06, -t / 2)
+        te = p.ear_thick
+        ear = _Placed(b, f.rot @ rotation(X, -p.bend), f.at((0.0, low, t / 2)))
+        b.part("body")
+        _slab(ear, p, w, top, te, 0.0, -te, (0.04, top * 0.3, top * 0.3))
+        if p.antenna:
+            ear.cylinder((w / 2 - 0.05, top + p.antenna_h / 2 - 0.01, -te / 2), 0.0325, p.antenna_h / 2 + 0.01,
+                         np.eye(3))
         back = t / 2
     else:  # flip: the keypad half, a hinge on its top front edge, the lid turned about it
         hl, tl = h * p.lid_frac * 0.52, p.lid_thick
@@ -192,30 +278,38 @@ def _hand_held(b: CSGBuilder, p: PhoneParams) -> None:
         b.part("hinge")
         f.cylinder(hinge, p.hinge_r, w / 2 * 0.75, ALONG_X)
         back = t / 2
-    if p.stand == "dock":  # a block or a round foot the phone stands in
+    if p.stand == "dock":  # a block or a round foot the phone stands in, maybe with a back rest
         b.part("stand")
         if p.dock_round:
             b.cylinder((0, base / 2, 0.0), max(p.stand_depth, w / 2 + 0.04), base / 2)
         else:
-            b.box((0, base / 2, 0.0), (min(w * 0.55, 0.4), base / 2, p.stand_depth / 2), rounding=0.02)
+            b.box((0, base / 2, 0.0), (min(w * p.dock_w + 0.03, 0.45), base / 2, p.stand_depth / 2), rounding=0.02)
+        if p.dock_back > 0:
+            rest = h * p.dock_back
+            zb = back + (p.battery if p.battery > 0 and p.battery_h > p.dock_back else 0.0) + p.strut_t / 2 - 0.01
+            f.box((0, rest / 2, zb), (w * p.dock_w, rest / 2, p.strut_t / 2), rounding=0.01)
     b.part("camera")
+    camera = "none" if p.style == "handset" else p.camera
     cs = p.camera_size * w
     cy = (h if p.style != "flip" else h * 0.52) - cs / 2 - 0.04
-    if p.camera == "square":
-        f.box((p.camera_x * (w / 2 - cs / 2 - 0.03), cy, back), (cs / 2, cs / 2, p.camera_h), rounding=0.02)
-    elif p.camera == "round":
-        f.cylinder((p.camera_x * (w / 2 - cs / 2 - 0.03), cy, back), cs / 2, p.camera_h, ALONG_Z)
-    elif p.camera == "strip":
-        f.box((0, cy, back), (w / 2 - 0.02, cs / 3 + 0.0275, p.camera_h), rounding=0.02)
-    if p.button:
+    wedge = min(p.taper * t, t - THICK) if p.style in ("slab", "candybar") and p.taper * t > 0.01 else 0.0
+    at_back = lambda y: back - wedge * y / h  # noqa: E731  (the back's z at a height, a wedge's included)
+    if camera == "square":
+        f.box((p.camera_x * (w / 2 - cs / 2 - 0.03), cy, at_back(cy)), (cs / 2, cs / 2, p.camera_h), rounding=0.02)
+    elif camera == "round":
+        f.cylinder((p.camera_x * (w / 2 - cs / 2 - 0.03), cy, at_back(cy)), cs / 2, p.camera_h, ALONG_Z)
+    elif camera == "strip":
+        f.box((0, cy, at_back(cy)), (w / 2 - 0.02, cs / 3 + 0.0275, p.camera_h), rounding=0.02)
+    if p.button and p.style != "handset":
         f.box((w / 2, h * 0.65 if p.style != "flip" else h * 0.35, 0.0), (0.0275, 0.06, 0.0275), rounding=0.01)
     if p.stand == "easel":  # a strut from the back down to the ground behind
         b.part("stand")
-        top = f.at((0, h * p.strut_at, back))
+        top = f.at((0, h * p.strut_at, at_back(h * p.strut_at)))
         foot = np.array([0.0, 0.0, top[2] + top[1] * math.tan(0.55 - p.lean * 0.5)])
         d = foot - top
         strut = np.stack([np.array(X), d / np.linalg.norm(d), np.cross(X, d / np.linalg.norm(d))], axis=1)
-        b.box((top + foot) / 2, (max(w * p.strut_w / 2, 0.04), np.linalg.norm(d) / 2, THICK / 2), strut, rounding=0.01)
+        b.box((top + foot) / 2, (max(w * p.strut_w / 2, 0.04), np.linalg.norm(d) / 2, p.strut_t / 2), strut,
+              rounding=0.01)
 
 
 def _desk(b: CSGBuilder, p: PhoneParams) -> None:
