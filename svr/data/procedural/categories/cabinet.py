@@ -8,7 +8,7 @@ cubbies, height/width 0.3-3, 1-6 shelf rows of 1-4 compartments, maybe doors bel
 (chests and filing cabinets, 2-6 drawer rows of 1-3), "sideboard" (height/width 0.3-0.65, doors,
 drawers and open bays side by side), "hutch" (a lower cabinet and a shallower upper unit on its
 counter: a stepped profile) and "nightstand" (small, drawers over an open niche). Depth/width
-0.2-1.2, panels 0.055-0.13 thick, the front set back up to 45% of the depth in half of them, bases
+0.2-1.2, panels 0.055-0.13 thick, the front set back up to 45% of the depth in two thirds of them, bases
 0-40% of the height, overhangs 0-0.06; every draw is in ``sample``.
 """
 from __future__ import annotations
@@ -28,8 +28,8 @@ LEG_SHAPES = ("square", "round", "tapered")
 HANDLES = ("knob", "bar", "none")
 # the chance that a closed cell of a style is an open compartment instead
 P_OPEN = {"doors": 0.45, "drawers": 0.35, "sideboard": 0.5, "hutch": 0.5, "nightstand": 0.45}
-P_AJAR = 0.3  # the chance that a door cell left closed stands open
-P_PULLED = 0.3  # the chance that a drawer left closed is pulled out
+P_AJAR = 0.45  # the chance that a door cell left closed stands open
+P_PULLED = 0.45  # the chance that a drawer left closed is pulled out
 
 
 @dataclass(frozen=True)
@@ -257,7 +257,7 @@ def sample(rng: np.random.Generator, style: str) -> CabinetParams:
     back = 0.0 if chance(rng, {"open_shelves": 0.45, "sideboard": 0.3}.get(style, 0.15)) else \
         uniform(rng, 0.055, max(0.07, 0.6 * depth))
     room = depth - back - 0.12  # a recessed front leaves open cells some depth
-    front_recess = uniform(rng, 0.02, max(0.03, min(0.45 * depth, room))) if room > 0.05 and chance(rng, 0.5) else 0.0
+    front_recess = uniform(rng, 0.02, max(0.03, min(0.45 * depth, room))) if room > 0.05 and chance(rng, 0.65) else 0.0
     return CabinetParams(
         style=style, width=width, depth=depth, body_height=body, sections=sections, panel=panel,
         back=back, front_recess=front_recess,

@@ -99,7 +99,7 @@ def sample(rng: np.random.Generator, style: str) -> SpeakerParams:
         raise ValueError(f"style must be one of {STYLES}, got {style!r}")
     bar_form = str(rng.choice(BAR_FORMS, p=(0.4, 0.3, 0.3))) if style == "soundbar" else "box"
     h_w, d_w = {"bookshelf": (uniform(rng, 0.9, 2.0), uniform(rng, 0.3, 1.5)),
-                "tower": (uniform(rng, 2.3, 5.0), uniform(rng, 0.8, 2.0)),
+                "tower": (uniform(rng, 2.3, 5.0), uniform(rng, 0.6, 2.4)),
                 "subwoofer": (uniform(rng, 0.6, 1.4), uniform(rng, 0.5, 1.5)),
                 "soundbar": {"bar": (uniform(rng, 0.12, 0.33), uniform(rng, 0.12, 0.4)),
                              "centre": (uniform(rng, 0.28, 0.55), uniform(rng, 0.25, 0.7)),
@@ -174,7 +174,7 @@ def sample(rng: np.random.Generator, style: str) -> SpeakerParams:
         recess=recess, wall=wall, back_open=max(back_open, 0.0), top_well=uniform(rng, 0.1, 0.9),
         bottom_well=uniform(rng, 0.1, 0.6) if form == "drum" and chance(rng, 0.4) else 0.0,
         gap=(uniform(rng, 0.3, 0.7), uniform(rng, 0.055, 0.14), uniform(rng, 0.25, 0.6))
-        if style in ("tower", "pa") and chance(rng, 0.4) else (0.0, 0.0, 0.0))
+        if style in ("tower", "pa") and chance(rng, 0.5) else (0.0, 0.0, 0.0))
 
 
 # ---------------------------------------------------------------------------------------------
