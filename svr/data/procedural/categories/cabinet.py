@@ -1,13 +1,15 @@
 """The procedural cabinet: a carcass with its front to -z whose front is a stack of tiers, each a row
-of cells (doors of one or two leaves, drawers, or open compartments: a cavity to a back panel or,
-with an open back, through it), on a plinth, legs (square, round or tapered), bun feet, side gables
-or nothing, under an optional overhanging top and cornice. Styles: "doors" (cupboards and wardrobes,
-height/width 0.7-2.4, maybe a drawer row or an open niche), "open_shelves" (bookcases and cubbies,
-height/width 0.3-3, 1-6 shelf rows of 1-4 compartments, maybe doors below), "drawers" (chests and
-filing cabinets, 2-6 drawer rows of 1-3), "sideboard" (height/width 0.3-0.65, doors, drawers and
-open bays side by side), "hutch" (a lower cabinet and a shallower upper unit on its counter: a
-stepped profile) and "nightstand" (small, drawers over an open niche). Depth/width 0.2-1.1, panels
-0.055-0.11 thick, bases 0-40% of the height, overhangs 0-0.06; every draw is in ``sample``.
+of cells (doors of one or two leaves, a door standing open by 20-110 degrees, drawers, a drawer pulled
+out 15-70% of the depth as an open box, or open compartments reaching 30-100% of the way to a back
+panel or, with an open back, through it), on a plinth, legs (square, round or tapered), bun feet,
+side gables or nothing, under an optional overhanging top and cornice. Styles: "doors" (cupboards and
+wardrobes, height/width 0.7-2.4, maybe a drawer row or an open niche), "open_shelves" (bookcases and
+cubbies, height/width 0.3-3, 1-6 shelf rows of 1-4 compartments, maybe doors below), "drawers"
+(chests and filing cabinets, 2-6 drawer rows of 1-3), "sideboard" (height/width 0.3-0.65, doors,
+drawers and open bays side by side), "hutch" (a lower cabinet and a shallower upper unit on its
+counter: a stepped profile) and "nightstand" (small, drawers over an open niche). Depth/width
+0.2-1.2, panels 0.055-0.13 thick, the front set back up to 45% of the depth in two thirds of them, bases
+0-40% of the height, overhangs 0-0.06; every draw is in ``sample``.
 """
 from __future__ import annotations
 
@@ -16,15 +18,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape
-from svr.data.procedural.categories.blocks import uniform, chance
+from svr.data.procedural.categories.blocks import uniform, chance, frame, Y
 
 STYLES = ("doors", "open_shelves", "drawers", "sideboard", "hutch", "nightstand")
-CELL_KINDS = ("door", "doors", "drawer", "open")  # "doors": a pair of leaves in one cell
+CELL_KINDS = ("door", "doors", "drawer", "open", "ajar", "pulled")
+# "doors": a pair of leaves in one cell; "ajar": a door swung open; "pulled": a drawer pulled out
 BASES = ("plinth", "legs", "feet", "gables", "none")
 LEG_SHAPES = ("square", "round", "tapered")
 HANDLES = ("knob", "bar", "none")
 # the chance that a closed cell of a style is an open compartment instead
-P_OPEN = {"doors": 0.35, "drawers": 0.25, "sideboard": 0.5, "hutch": 0.4, "nightstand": 0.3}
+P_OPEN = {"doors": 0.45, "drawers": 0.35, "sideboard": 0.5, "hutch": 0.5, "nightstand": 0.45}
+P_AJAR = 0.45  # the chance that a door cell left closed stands open
+P_PULLED = 0.45  # the chance that a drawer left closed is pulled out
 
 
 @dataclass(frozen=True)
@@ -34,6 +39,7 @@ class Tier:
 
     height: float
     cells: tuple[tuple[str, float], ...]
+    depth: float = 1.0  # open cells reach this share of the way from the front to the back panel
 
 
 @dataclass(frozen=True)
@@ -73,6 +79,9 @@ class CabinetParams:
     upper_width: float
     upper_sections: tuple[Section, ...]
     cornice: float          # a slab on the very top, overhanging by this; 0: none
+    door_angle: float       # "ajar" cells: the leaf's swing out of the front, radians
+    pull: float             # "pulled" cells: the drawer's box out of the front, share of the carcass depth
+    drawer_wall: float      # "pulled" cells: the drawer box's walls
 
 
 # ---------------------------------------------------------------------------------------------
@@ -86,7 +95,8 @@ def _shares(rng: np.random.Generator, n: int, jitter: float) -> tuple[float, ...
 
 
 def _tier(rng: np.random.Generator, kinds, height: float, jitter: float = 0.25) -> Tier:
-    return Tier(height, tuple(zip(kinds, _shares(rng, len(kinds), jitter))))
+    depth = 1.0 if chance(rng, 0.35) else uniform(rng, 0.3, 1.0)
+    return Tier(height, tuple(zip(kinds, _shares(rng, len(kinds), jitter))), depth)
 
 
 def _stack(rng: np.random.Generator, tiers: list[tuple[list[str], float]], height: float, width: float,
@@ -127,8 +137,14 @@ def _drawer_rows(rng: np.random.Generator, width: float, most: int = 6) -> list:
 
 
 def _open_some(rng: np.random.Generator, rows: list, p: float) -> list:
-    """Each closed cell becomes an open compartment with probability p."""
-    return [([("open" if chance(rng, p) else kind) for kind in kinds], h) for kinds, h in rows]
+    """Each closed cell becomes an open compartment with probability p, a door left so maybe ajar."""
+    def one(kind: str) -> str:
+        if chance(rng, p):
+            return "open"
+        if kind == "drawer" and chance(rng, P_PULLED):
+            return "pulled"
+        return "ajar" if kind == "door" and chance(rng, P_AJAR) else kind
+    return [([one(kind) for kind in kinds], h) for kinds, h in rows]
 
 
 def _bay(rng: np.random.Generator, kind: str, height: float, width: float) -> list:
@@ -162,7 +178,7 @@ def sample(rng: np.random.Generator, style: str) -> CabinetParams:
         "drawers": (uniform(rng, 0.45, 2.2), uniform(rng, 0.4, 1.1)),
         "sideboard": (uniform(rng, 0.3, 0.65), uniform(rng, 0.22, 0.5)),
         "hutch": (uniform(rng, 1.0, 2.2), uniform(rng, 0.3, 0.65)),
-        "nightstand": (uniform(rng, 0.8, 1.5), uniform(rng, 0.7, 1.1)),
+        "nightstand": (uniform(rng, 0.6, 1.6), uniform(rng, 0.5, 1.2)),
     }[style]
     base = str(rng.choice(BASES, p={
         "doors": (0.3, 0.35, 0.15, 0.1, 0.1), "open_shelves": (0.25, 0.15, 0.05, 0.3, 0.25),
@@ -176,7 +192,7 @@ def sample(rng: np.random.Generator, style: str) -> CabinetParams:
     s = 1.0 / max(1.0, h_w, d_w)  # raw scale: the longest side is 1
     width, height, depth = s, h_w * s, d_w * s
     base_height = max(base_frac * height, 0.055) if base != "none" else 0.0
-    panel = min(uniform(rng, 0.055, 0.11), max(0.055, 0.12 * min(width, height)))
+    panel = min(uniform(rng, 0.055, 0.13), max(0.055, 0.12 * min(width, height)))
     top_thick = uniform(rng, 0.055, 0.09) if top else 0.0
     overhang = uniform(rng, 0.0, 0.06) if top else 0.0
     cornice = uniform(rng, 0.02, 0.06) if style in ("doors", "hutch") and chance(rng, 0.3) else 0.0
@@ -238,19 +254,22 @@ def sample(rng: np.random.Generator, style: str) -> CabinetParams:
             rows.insert(0 if chance(rng, 0.8) else len(rows), (["open"], uniform(rng, 0.8, 1.8)))
         bays = [(1.0, rows)]
     sections = _unit(rng, bays, body, width, panel, p_open)
+    back = 0.0 if chance(rng, {"open_shelves": 0.45, "sideboard": 0.3}.get(style, 0.15)) else \
+        uniform(rng, 0.055, max(0.07, 0.6 * depth))
+    room = depth - back - 0.12  # a recessed front leaves open cells some depth
+    front_recess = uniform(rng, 0.02, max(0.03, min(0.45 * depth, room))) if room > 0.05 and chance(rng, 0.65) else 0.0
     return CabinetParams(
         style=style, width=width, depth=depth, body_height=body, sections=sections, panel=panel,
-        back=0.0 if chance(rng, {"open_shelves": 0.45, "sideboard": 0.3}.get(style, 0.15)) else
-        uniform(rng, 0.055, max(0.07, 0.55 * depth)),
-        front_recess=uniform(rng, 0.02, max(0.03, 0.3 * depth)) if chance(rng, 0.4) else 0.0,
+        back=back, front_recess=front_recess,
         shelf_inset=uniform(rng, 0.0, 0.05) if chance(rng, 0.4) else 0.0,
         margin=uniform(rng, 0.012, 0.05), handle=str(rng.choice(HANDLES, p=(0.4, 0.45, 0.15))),
         handle_size=uniform(rng, 0.028, 0.04), handle_height=uniform(rng, 0.3, 0.8),
         base=base, base_height=base_height, leg_thick=uniform(rng, 0.055, 0.1),
         leg_shape=str(rng.choice(LEG_SHAPES)), undershelf=uniform(rng, 0.15, 0.5) if chance(rng, 0.35) else 0.0, leg_inset=uniform(rng, 0.0, 0.06),
-        plinth_inset=uniform(rng, 0.0, 0.06), top_thick=top_thick, top_overhang=overhang,
+        plinth_inset=uniform(rng, 0.0, 0.14), top_thick=top_thick, top_overhang=overhang,
         upper_height=upper_h, upper_depth=upper_d, upper_width=upper_w, upper_sections=upper,
-        cornice=cornice)
+        cornice=cornice, door_angle=uniform(rng, 0.35, 1.9),
+        pull=uniform(rng, 0.15, 0.7), drawer_wall=uniform(rng, 0.055, 0.09))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -280,6 +299,11 @@ def _front(b: CSGBuilder, p: CabinetParams, tiers, x0: float, x1: float, y0: flo
                 j += 1
             b.part("body")
             b.box_between((x0 + t, spans[k][0], z0 - 0.05), (x1 - t, spans[j][1], zb), op="subtract")
+            for m in range(k, j + 1):  # shallower tiers: their back filled in again
+                zend = min(zb + 0.01, z1)
+                zfill = min(z0 + spans[m][2].depth * (zb - z0), zend - 0.06)
+                if spans[m][2].depth < 0.99 and zfill > z0 + 0.05:
+                    b.box_between((x0 + t / 2, spans[m][0] - 0.01, zfill), (x1 - t / 2, spans[m][1] + 0.01, zend))
             b.part("shelves")
             zs0 = z0 + p.shelf_inset
             for m in range(k, j):
@@ -298,9 +322,13 @@ def _front(b: CSGBuilder, p: CabinetParams, tiers, x0: float, x1: float, y0: flo
         xa = x0 + t
         for kind, share in tier.cells:
             xb = xa + share * w
-            if kind == "open":
+            if kind in ("open", "ajar", "pulled"):
                 b.part("body")
-                b.box_between((xa, ya0, z0 - 0.05), (xb, ya1, zb), op="subtract")
+                zc = z0 + tier.depth * (zb - z0) if kind == "open" else zb if kind == "ajar" else z1 - 0.055
+                zc = zb if kind == "open" and z1 - zc < 0.06 else zc  # no sliver of a back
+                b.box_between((xa, ya0, z0 - 0.05), (xb, ya1, zc), op="subtract")
+                if kind != "open":  # the leaf or the drawer's box, added after every cut
+                    handles.append((kind, xa, xb, ya0, ya1, z1))
             else:
                 _closed_cell(b, p, kind, xa - t / 2, xb + t / 2, ya0 - t / 2, ya1 + t / 2, z0, handles)
             xa = xb + t
@@ -338,6 +366,32 @@ def _closed_cell(b: CSGBuilder, p: CabinetParams, kind: str, xa: float, xb: floa
 
 
 def _handles(b: CSGBuilder, p: CabinetParams, handles: list, z0: float) -> None:
+    t = p.panel
+    for _, xa, xb, ya, yb, zb in [h for h in handles if h[0] == "pulled"]:  # a drawer's open box, pulled out
+        b.part("drawers")
+        m, dw = p.margin, p.drawer_wall
+        if xb - xa < 2 * dw + 0.06 or yb - ya < dw + 0.06:  # too small to hollow: a plain pulled box
+            dw = 0.0
+        zd0 = z0 - p.pull * (zb - z0)
+        zd1 = min(zd0 + 0.85 * (zb - z0), zb - 0.06)
+        x0, x1, yt = xa + 0.01, xb - 0.01, yb - min(m, 0.3 * (yb - ya))  # resting on the cell's floor
+        b.box_between((x0, ya - 0.01, zd0), (x1, yt, zd1))
+        if dw > 0:
+            b.box_between((x0 + dw, ya - 0.01 + dw, zd0 + dw), (x1 - dw, yt + 0.005, zd1 - dw), op="subtract")
+        if p.handle != "none":
+            b.part("handles")
+            b.box(((xa + xb) / 2, ya + 0.55 * (yb - ya), zd0 - 0.01), (max(0.3 * (xb - xa), 0.05), 0.0275, 0.04), rounding=0.01)
+    for _, xa, xb, ya, yb, _ in [h for h in handles if h[0] == "ajar"]:  # doors swung open about a side
+        b.part("doors")
+        s = 1.0 if (xa + xb) / 2 < 0 else -1.0  # hinged on the side nearer the carcass's edge
+        xh = xa - t / 2 if s > 0 else xb + t / 2
+        a = p.door_angle
+        along = np.array([s * np.cos(a), 0.0, -np.sin(a)])
+        out = np.array([-s * np.sin(a), 0.0, -np.cos(a)])
+        lw = xb - xa + t
+        c = np.array([xh, (ya + yb) / 2, z0]) + along * (lw / 2 - 0.03) + out * t / 2
+        b.box(c, ((lw + 0.06) / 2, (yb - ya + t) / 2 - p.margin, t / 2), frame(Y, along))
+    handles = [h for h in handles if h[0] not in ("ajar", "pulled")]
     b.part("handles")
     r = p.handle_size
     for kind, x, y, room in handles:
