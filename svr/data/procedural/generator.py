@@ -40,7 +40,7 @@ from svr.data.procedural.csg import CSGShape, surface_normals_and_parts, trace_r
 from svr.data.types import ShadingModel
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
-GENERATOR_VERSION = 3
+GENERATOR_VERSION = 4
 
 IMAGE_SIZE = 64
 SPLITS = ("train", "val", "test")
