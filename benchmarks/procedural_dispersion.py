@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Optional, Sequence
@@ -215,7 +216,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     start = time.time()
     summary, test = dispersion(args.preset, args.cache_dir, overrides, args.oracle_objects)
     seconds = time.time() - start
-    command = "python -m benchmarks.procedural_dispersion " + " ".join(argv if argv is not None else [])
+    command = "python -m benchmarks.procedural_dispersion " + " ".join(argv if argv is not None else sys.argv[1:])
     sizes = ", ".join(f"{k} {v}" for k, v in summary["sizes"].items())
     text = (f"# Procedural benchmark: dispersion and lookup\n\nCommand: `{command.strip()}` ({seconds:.0f} s, "
             f"the dataset already generated or not).\n\n{machine_info()}\n\nPreset `{args.preset}` (objects per "
