@@ -164,6 +164,10 @@ def reading(summary: dict) -> str:
         if a in m and b in m:
             out.append(f"- {summary['rows'][a]['label']} - {summary['rows'][b]['label']}: "
                        f"**{m[a] - m[b]:+.3f}**: {what}.")
+    if "voxels" in m and "shipped" in m and m["voxels"] < m["shipped"]:
+        out.append("- the 3D-supervised row is below the shipped recipe: its loss (`svr.losses.voxel_loss`) trains "
+                   "this network worse than the silhouettes do, so the row does not yet measure what the "
+                   "architecture can read from one image.")
     if "shipped" in summary["rows"] and "category_mean_shape" in summary["rows"]:
         below = [n for n, r in summary["rows"]["shipped"]["categories"].items()
                  if r["iou"] < summary["rows"]["category_mean_shape"]["categories"][n]["iou"]]

@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional
 
+import numpy as np
 import torch
 from torch.nn import functional as F
 
@@ -29,6 +30,7 @@ from svr.evaluation.voxels import sdf_at_voxel_centres
 from svr.view_renders import render_views
 
 SILHOUETTE_KINDS = ("mse", "iou")
+VOXEL_KINDS = ("distance", "bce")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -152,16 +154,44 @@ def image_loss(
 # 3D supervision
 
 
-def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, level: float = PROTOCOL_LIKE_LEVEL,
-               softness: float = 0.5 / 31) -> torch.Tensor:
-    """Binary cross-entropy of the predicted occupancy at the NMR voxel centres against the
-    dataset's voxels: occupancy ``sigmoid((level - sdf) / softness)``, with ``level`` the offset at
-    which an SDF's direct voxels best match the benchmark protocol's fatter ones.
+def voxel_distances(voxels: torch.Tensor, truncation: float = 3.0) -> torch.Tensor:
+    """Signed distances at the voxel centres, in voxels, from solid voxels alone: an empty centre's
+    distance to the nearest solid centre minus 1/2, a solid centre's distance to the nearest empty
+    one minus 1/2, negated (so the zero level lies half-way between neighbours that differ),
+    truncated to ``[-truncation, truncation]``.
+
+    Args:
+        voxels: (B, R, R, R) bool.
+    Returns:
+        (B, R, R, R) float32 on voxels' device.
+    """
+    from scipy import ndimage  # only the 3D-supervised loss needs it
+
+    v = voxels.detach().cpu().numpy().astype(bool)
+    out = np.full(v.shape, truncation, dtype=np.float32)
+    for b in range(len(v)):
+        if v[b].all():
+            out[b] = -truncation
+        elif v[b].any():
+            out[b] = np.where(v[b], 0.5 - ndimage.distance_transform_edt(v[b]),
+                              ndimage.distance_transform_edt(~v[b]) - 0.5)
+    return torch.from_numpy(np.clip(out, -truncation, truncation)).to(voxels.device)
+
+
+def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, kind: str = "distance",
+               level: float = PROTOCOL_LIKE_LEVEL, softness: float = 0.5 / 31, truncation: float = 3.0) -> torch.Tensor:
+    """3D supervision by the dataset's voxels, from the predicted SDF at the NMR voxel centres
+    shifted by ``level`` (the offset at which an SDF's direct voxels best match the benchmark
+    protocol's fatter ones).
 
     Args:
         sdf: (B, N, N, N) predicted SDF over ``[-half_side, half_side]^3``.
         voxels: (B, R, R, R) bool solid voxels in the NMR frame.
-        level, softness: world units (default: 0.55 and 0.5 of the 1/31 voxel).
+        kind: "distance": the mean absolute difference, in voxels, between the truncated shifted
+            SDF and ``voxel_distances`` of the voxels; "bce": binary cross-entropy of the occupancy
+            ``sigmoid((level - sdf) / softness)`` against the voxels.
+        level, softness: world units (default: 0.55 and 0.5 of the voxel, 1 / (R - 1)).
+        truncation: in voxels ("distance").
     Returns:
         scalar tensor, the mean over voxels.
     """
@@ -169,8 +199,13 @@ def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, level:
     check_positive(softness, "softness")
     if voxels.shape[0] != sdf.shape[0]:
         raise ValueError(f"voxels has {voxels.shape[0]} grids but sdf has {sdf.shape[0]}")
+    if kind not in VOXEL_KINDS:
+        raise ValueError(f"kind must be one of {VOXEL_KINDS}, got {kind!r}")
     at, _ = sdf_at_voxel_centres(sdf, -half_side, half_side, r)
-    return F.binary_cross_entropy_with_logits((level - at) / softness, voxels.to(at.dtype))
+    if kind == "bce":
+        return F.binary_cross_entropy_with_logits((level - at) / softness, voxels.to(at.dtype))
+    pred = ((at - level) * (r - 1)).clamp(-truncation, truncation)
+    return (pred - voxel_distances(voxels, truncation).to(at.dtype)).abs().mean()
 
 
 # ------------------------------------------------------------------------------------------------
@@ -189,6 +224,7 @@ class LossWeights:
         eikonal: lambda_1 (paper 0.02). laplacian: lambda_2 (paper 0.02).
         band_mu: narrow band half-width in voxels (paper 1.6).
         silhouette_kind: "mse" (paper: L2) or "iou".
+        voxel_kind: the 3D term's form (``voxel_loss``'s ``kind``).
     """
 
     silhouette: float = 1.0
@@ -198,6 +234,7 @@ class LossWeights:
     laplacian: float = 0.02
     band_mu: float = 1.6
     silhouette_kind: str = "mse"
+    voxel_kind: str = "distance"
 
     def __post_init__(self) -> None:
         for name in ("silhouette", "shading", "voxel", "eikonal", "laplacian"):
@@ -205,6 +242,8 @@ class LossWeights:
         check_positive(self.band_mu, "band_mu")
         if self.silhouette_kind not in SILHOUETTE_KINDS:
             raise ValueError(f"silhouette_kind must be one of {SILHOUETTE_KINDS}, got {self.silhouette_kind!r}")
+        if self.voxel_kind not in VOXEL_KINDS:
+            raise ValueError(f"voxel_kind must be one of {VOXEL_KINDS}, got {self.voxel_kind!r}")
         if self.silhouette == 0 and self.shading == 0 and self.voxel == 0:
             raise ValueError("the silhouette, shading and voxel loss weights are all 0: nothing supervises the shape")
 
@@ -264,5 +303,6 @@ def total_loss(image: Optional[ImageLoss], sdf: torch.Tensor, voxel_size: float,
 
 __all__ = [
     "narrow_band", "band_regularisers", "eikonal_loss", "laplacian_loss", "silhouette_loss", "shading_loss", "resize_images",
-    "image_loss", "ImageLoss", "voxel_loss", "LossWeights", "LossTerms", "total_loss", "SILHOUETTE_KINDS",
+    "image_loss", "ImageLoss", "voxel_loss", "voxel_distances", "LossWeights", "LossTerms", "total_loss",
+    "SILHOUETTE_KINDS", "VOXEL_KINDS",
 ]

@@ -170,7 +170,8 @@ class SVRLightningModule(pl.LightningModule):
                     "silhouette": img.silhouettes.detach().cpu(),
                     **({"colour": img.colours.detach().cpu()} if img.colours is not None else {}),
                 }
-        vox = voxel_loss(sdf, self.net.half_side, batch.voxels) if self.loss_weights.voxel > 0 else None
+        vox = (voxel_loss(sdf, self.net.half_side, batch.voxels, self.loss_weights.voxel_kind)
+               if self.loss_weights.voxel > 0 else None)
         return total_loss(img, sdf, self.net.voxel_size, self.loss_weights, vox)
 
     def _trainable(self) -> list[torch.nn.Parameter]:

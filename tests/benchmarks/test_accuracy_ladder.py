@@ -53,6 +53,9 @@ def test_ladder_rows_means_and_reading():
     text = reading(summary)
     assert "**+0.062**" in text  # shipped 0.5625 - retrieval 0.5
     assert "below the category mean shape: none" in text
+    assert "does not yet measure" not in text  # the 3D row is above the shipped one here
+    worse = ladder({"shipped": _objects(1.0), "voxels": _objects(0.5)}, lookup, ["chair", "table"])
+    assert "does not yet measure" in reading(worse)
 
 
 def test_ladder_without_the_voxel_row_and_with_disjoint_data():

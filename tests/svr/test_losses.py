@@ -10,7 +10,7 @@ import math
 
 from svr.evaluation.voxels import nmr_voxel_centres
 from svr.losses import (LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss,
-                        voxel_loss)
+                        voxel_distances, voxel_loss)
 from svr.view_renders import render_views
 
 
@@ -97,17 +97,34 @@ def test_voxel_loss_hand_computed():
     vox[..., :2] = True
     p = 1.0 / (1.0 + math.exp(-(level - c) / soft))
     expected = -0.5 * (math.log(p) + math.log(1.0 - p))
-    assert voxel_loss(sdf, 0.6, vox, level=level, softness=soft).item() == pytest.approx(expected)
+    assert voxel_loss(sdf, 0.6, vox, "bce", level=level, softness=soft).item() == pytest.approx(expected)
 
 
-def test_voxel_loss_prefers_the_right_shape_and_its_gradient_grows_a_small_one():
+def test_voxel_distances_hand_computed():
+    vox = torch.zeros(2, 5, 5, 5, dtype=torch.bool)
+    vox[0, 2, 2, 2] = True           # one solid voxel
+    vox[1] = True                    # all solid
+    d = voxel_distances(vox, truncation=2.0)
+    assert d[0, 2, 2, 2].item() == pytest.approx(-0.5)
+    assert d[0, 2, 2, 3].item() == pytest.approx(0.5)
+    assert d[0, 2, 3, 3].item() == pytest.approx(math.sqrt(2) - 0.5)
+    assert d[0, 0, 0, 0].item() == pytest.approx(2.0)  # sqrt(12) - 0.5, truncated
+    assert (d[1] == -2.0).all()
+    # the distance loss of a constant SDF is the mean gap to these targets, in voxels
+    sdf = torch.zeros(2, 8, 8, 8)
+    expected = (d - 0.0).abs().mean().item()
+    assert voxel_loss(sdf, 0.6, vox, level=0.0, truncation=2.0).item() == pytest.approx(expected, rel=1e-5)
+
+
+@pytest.mark.parametrize("kind", ["distance", "bce"])
+def test_voxel_loss_prefers_the_right_shape_and_its_gradient_grows_a_small_one(kind):
     # Voxels of a sphere of radius 0.3 (centres inside it): the exact SDF scores lower than a
     # smaller or larger sphere, and on the smaller one gradient descent lowers the SDF (grows it).
     vox = (nmr_voxel_centres(32).norm(dim=-1) < 0.3)[None]
-    losses = {r: voxel_loss(_sphere(r=r, batch=1), 0.6, vox, level=0.0).item() for r in (0.2, 0.3, 0.4)}
+    losses = {r: voxel_loss(_sphere(r=r, batch=1), 0.6, vox, kind, level=0.0).item() for r in (0.2, 0.3, 0.4)}
     assert losses[0.3] < losses[0.2] and losses[0.3] < losses[0.4]
     small = _sphere(r=0.2, batch=1).requires_grad_(True)
-    voxel_loss(small, 0.6, vox, level=0.0).backward()
+    voxel_loss(small, 0.6, vox, kind, level=0.0).backward()
     assert small.grad.sum().item() > 0
 
 
@@ -148,3 +165,7 @@ def test_bad_input_names_the_argument():
         LossWeights(silhouette=0.0, shading=0.0)
     with pytest.raises(ValueError, match="voxels"):
         voxel_loss(_sphere(batch=1), 0.6, torch.zeros(1, 4, 4, dtype=torch.bool))
+    with pytest.raises(ValueError, match="kind"):
+        voxel_loss(_sphere(batch=1), 0.6, torch.zeros(1, 4, 4, 4, dtype=torch.bool), "l2")
+    with pytest.raises(ValueError, match="voxel_kind"):
+        LossWeights(voxel_kind="l2")
