@@ -24,6 +24,7 @@ from hydra.utils import instantiate
 from benchmarks.report import Point, progress_log, timed, tradeoff_section
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
+from svr.data.procedural.generator import GENERATOR_VERSION
 from svr.training.stages import train
 
 CATEGORIES = ("chair", "table", "airplane", "mug")
@@ -200,7 +201,8 @@ def run(out_dir: Path, work: Path, quick: bool = False, steps: Optional[tuple[in
     cats = QUICK_CATEGORIES if quick else CATEGORIES
     d = next(r for r in runs(quick) if r.default)
     intro = (
-        f"`svr.training.stages.train` (configs/train.yaml) on a small procedural dataset: {len(cats)} categories "
+        f"`svr.training.stages.train` (configs/train.yaml) on a small procedural dataset (generator version "
+        f"{GENERATOR_VERSION}): {len(cats)} categories "
         f"({', '.join(cats)}), {'2' if quick else '8'} training and {'1' if quick else '2'} validation objects per "
         f"category, 24 views each, `data.supersample=1`, batch of {'2' if quick else '8'} objects (made once and "
         f"cached; not counted). Every run: {steps[0]} coarse steps then {steps[1]} refine steps "
