@@ -78,8 +78,8 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
         else:
             touched.append(key)
 
-    def requested_here(path: str) -> bool:
-        return any(t == "" or path == t or path.startswith(t + ".") for t in touched)
+    def requested_here(path: str, named_only: bool = False) -> bool:
+        return any((t == "" and not named_only) or t and (path == t or path.startswith(t + ".")) for t in touched)
 
     merged = saved.copy()
     changes, refused = [], []
@@ -88,8 +88,10 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
         old, new = saved_leaves.get(path, missing), requested_leaves.get(path, missing)
         if old == new or new is missing and not requested_here(path):
             continue
-        if old is missing and not requested_here(path):
-            if not _known(saved_leaves, path):  # a setting the saved run did not know yet: its default
+        if old is missing and not requested_here(path, named_only=True):
+            # A setting the saved run did not know yet takes its default, also under a global group
+            # (experiment=...) that did not name it.
+            if not _known(saved_leaves, path):
                 OmegaConf.update(merged, path, new, merge=False)
             continue
         if not requested_here(path):

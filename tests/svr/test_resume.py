@@ -147,6 +147,14 @@ def test_resume_config_takes_the_defaults_of_settings_a_saved_run_lacks():
     assert OmegaConf.to_container(merged) == {"seed": 0, "callbacks": {"progress_bar": None},
                                               "paths": {"output_dir": "outputs"}}
     assert changes == []
+    # The same under a global group on the command line (the demo's experiment=demo), which names
+    # every setting but not the new ones.
+    saved = OmegaConf.create({"seed": 0, "loss": {"weights": {"voxel": 0.0}}})
+    requested = OmegaConf.create({"seed": 0, "loss": {"weights": {"voxel": 0.0, "voxel_kind": "distance"}}})
+    merged, changes = resume_config(saved, requested, ["experiment=demo"])
+    assert merged.loss.weights.voxel_kind == "distance" and changes == []
+    with pytest.raises(ValueError, match="voxel_kind"):  # named on the command line: a change
+        resume_config(saved, requested, ["loss.weights.voxel_kind=distance"])
 
 
 def test_run_folder_and_latest_checkpoint(tmp_path):
