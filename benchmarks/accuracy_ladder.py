@@ -26,7 +26,7 @@ from typing import Optional, Sequence
 import numpy as np
 from hydra.utils import instantiate
 
-from benchmarks.procedural_dispersion import PRESETS, lookup_ceiling
+from benchmarks.procedural_dispersion import PRESETS, all_voxels, lookup_ceiling
 from benchmarks.report import atomic_write_text, machine_info, save_figure
 from sdfcommon.tooling.commands import compose
 
@@ -86,11 +86,7 @@ def lookup_per_object(preset: str, overrides: Sequence[str] = ()) -> tuple[dict[
     dm = instantiate(cfg.data)
     dm.prepare_data()
     test, train = dm.dataset("test"), dm.dataset("train")
-
-    def voxels(ds) -> np.ndarray:
-        return np.stack([ds.voxels(g).numpy() for g in range(len(ds))])
-
-    best = lookup_ceiling(voxels(test), voxels(train))
+    best = lookup_ceiling(all_voxels(test), all_voxels(train))
     names = [n for _, n in test.categories]
     out = {}
     for g in range(len(test)):

@@ -81,7 +81,8 @@ def bootstrap_interval(values: np.ndarray, samples: int = 2000, seed: int = 0) -
     return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
-def _all_voxels(dataset) -> np.ndarray:
+def all_voxels(dataset) -> np.ndarray:
+    """Every object's voxels of a split: (N, R, R, R) bool."""
     return np.stack([dataset.voxels(g).numpy() for g in range(len(dataset))])
 
 
@@ -103,7 +104,7 @@ def dispersion(preset: str = "bench", cache_dir: Optional[Path] = None, override
     dm.prepare_data()
     test, train = dm.dataset("test"), dm.dataset("train")
     names = [n for _, n in test.categories]
-    test_vox, train_vox = _all_voxels(test), _all_voxels(train)
+    test_vox, train_vox = all_voxels(test), all_voxels(train)
     best = lookup_ceiling(test_vox, train_vox)
     located = [test.locate(g) for g in range(len(test))]
     obj_cat = np.array([c for c, _ in located])
