@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import pick, ALONG_X, MIN_PART, X, bar, chance, uniform
+from svr.data.procedural.categories.blocks import (pick, ALONG_X, MIN_PART, UPRIGHT_LEGS, X, bar, chance, leg,
+                                                   uniform)
 
 STYLES = ("park", "panel", "backless", "rail_back")
 SUPPORTS = ("legs", "aframe", "trestle", "sled", "panel", "block", "frame")
@@ -102,12 +103,8 @@ def _support(b: CSGBuilder, p: BenchParams, x: float, out: float) -> None:
         for z in (-lz,) if p.style == "rail_back" else (-lz, lz):
             if z < 0 and arm_top:
                 b.box((x, arm_top / 2, z), (t / 2, arm_top / 2, t / 2))
-            elif p.leg == "straight":
-                b.box((x, hh, z), (t / 2, hh, t / 2))
-            elif p.leg == "round":
-                b.cylinder((x, hh, z), t / 2, hh)
-            elif p.leg == "tapered":
-                b.cone((x, hh, z), hh, max(HALF, 0.55 * t), 0.5 * t + 0.025)
+            elif p.leg in UPRIGHT_LEGS:
+                leg(b, p.leg, x, z, 2 * hh, t)
             else:
                 s = p.splay
                 sx = min(s, max(0.0, p.length / 2 - abs(x) - t / 2))  # feet within the seat's ends

@@ -108,13 +108,27 @@ def tail_cone(b: CSGBuilder, z0: float, z1: float, r0: float, r1: float) -> None
     b.cone((a + c) / 2, np.linalg.norm(c - a) / 2, r0, r1, frame(c - a, X))
 
 
+UPRIGHT_LEGS = ("straight", "round", "tapered")
+
+
+def leg(b: CSGBuilder, kind: str, x: float, z: float, top: float, thick: float) -> None:
+    """One upright leg from the floor to ``top`` at (x, z): "straight" (square), "round", or
+    "tapered" (a cone narrowing towards the floor, never under MIN_PART)."""
+    hh = top / 2
+    if kind == "straight":
+        b.box((x, hh, z), (thick / 2, hh, thick / 2))
+    elif kind == "round":
+        b.cylinder((x, hh, z), thick / 2, hh)
+    elif kind == "tapered":
+        b.cone((x, hh, z), hh, max(MIN_PART / 2, 0.55 * thick), 0.5 * thick + 0.025)
+    else:
+        raise ValueError(f"kind must be one of {UPRIGHT_LEGS}, got {kind!r}")
+
+
 def legs(b: CSGBuilder, xs: Sequence[float], zs: Sequence[float], top: float, thick: float, round_legs: bool) -> None:
     for x in xs:
         for z in zs:
-            if round_legs:
-                b.cylinder((x, top / 2, z), thick / 2, top / 2)
-            else:
-                b.box((x, top / 2, z), (thick / 2, top / 2, thick / 2))
+            leg(b, "round" if round_legs else "straight", x, z, top, thick)
 
 
 def recess(b: CSGBuilder, x0: float, x1: float, y0: float, y1: float, z_face: float, depth: float) -> None:

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from svr.data.procedural.csg import CSGBuilder, CSGShape, rotation
-from svr.data.procedural.categories.blocks import pick, MIN_PART, X, Y, bar, chance, uniform
+from svr.data.procedural.categories.blocks import pick, MIN_PART, UPRIGHT_LEGS, X, Y, bar, chance, leg, uniform
 
 STYLES = ("four_legs", "slatted", "armchair", "swivel", "cantilever", "barstool")
 SEATS = ("box", "rounded", "round")
@@ -157,12 +157,8 @@ def _legs(b: CSGBuilder, p: ChairParams) -> list[tuple[float, float]]:
     at_y = []
     hh = sh / 2 + 0.005  # into the seat
     for x, z in _leg_feet(p):
-        if p.leg == "straight":
-            b.box((x, hh, z), (t / 2, hh, t / 2))
-        elif p.leg == "round":
-            b.cylinder((x, hh, z), t / 2, hh)
-        elif p.leg == "tapered":
-            b.cone((x, hh, z), hh, max(HALF, 0.55 * t), 0.5 * t + 0.025)
+        if p.leg in UPRIGHT_LEGS:
+            leg(b, p.leg, x, z, 2 * hh, t)
         else:  # splayed: the foot pushed outwards
             s = p.splay / math.hypot(x, z)
             b.rod((x, sh + 0.01, z), (x * (1 + s), t / 2, z * (1 + s)), max(HALF, t / 2))
