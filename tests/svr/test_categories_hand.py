@@ -66,15 +66,21 @@ def test_phone_sweep_covers_styles_options_and_wide_ranges():
     assert _span([r.thick for r in desks])[0] < 0.08 and _span([r.thick for r in desks])[1] > 0.3
 
 
-def test_phone_proportions_spread_and_objects_are_connected_and_labelled():
+def _checked_extents(name: str, styles, seed: int, count: int) -> np.ndarray:
+    """Builds ``count`` objects cycling through the styles, checks that each has 2-8 parts and the
+    first half one connected solid each; returns their (count, 3) extents."""
     ext = []
-    for k in range(36):
-        shape = make_shape("phone", [43, k], style=phone.STYLES[k % len(phone.STYLES)])
+    for k in range(count):
+        shape = make_shape(name, [seed, k], style=styles[k % len(styles)])
         ext.append(_extent(shape))
         assert 2 <= len(shape.parts) <= 8, shape.parts
-        if k < 18:
+        if k < count // 2:
             assert _components(shape) == 1, k
-    ext = np.array(ext)
+    return np.array(ext)
+
+
+def test_phone_proportions_spread_and_objects_are_connected_and_labelled():
+    ext = _checked_extents("phone", phone.STYLES, 43, 36)
     assert ext[:, 2].min() < 0.25 and ext[:, 2].max() > 0.6  # depth: thin upright slabs to leaning and desk phones
     assert ext[:, 0].min() < 0.35 and ext[:, 0].max() > 0.9  # width: a narrow handset to a desk phone
 
@@ -110,14 +116,7 @@ def test_rifle_sweep_covers_stocks_slings_bipods_and_widths():
 
 
 def test_rifle_objects_are_connected_labelled_and_spread():
-    ext = []
-    for k in range(30):
-        shape = make_shape("rifle", [44, k], style=rifle.STYLES[k % len(rifle.STYLES)])
-        ext.append(_extent(shape))
-        assert 2 <= len(shape.parts) <= 8, shape.parts
-        if k < 15:
-            assert _components(shape) == 1, k
-    ext = np.array(ext)
+    ext = _checked_extents("rifle", rifle.STYLES, 44, 30)
     assert np.allclose(ext[:, 2], 1.0, atol=1e-3)  # long along z
     assert ext[:, 1].min() < 0.25 and ext[:, 1].max() > 0.45
     assert ext[:, 0].min() < 0.11 and ext[:, 0].max() > 0.15
