@@ -30,7 +30,8 @@ def run(settings: InferSettings) -> list[dict[str, Path]]:
     results = infer_files(model, settings.images, folder, masks=settings.masks, mask_suffix=settings.mask_suffix or "",
                           views=settings.views, render_size=settings.render_size, batch_size=settings.batch_size,
                           formats=settings.formats, require_watertight=settings.require_watertight,
-                          backend=settings.backend, progress=settings.progress)
+                          backend=settings.backend, progress=settings.progress,
+                          input_view=settings.input_view)
     for files in results:
         print("wrote " + ", ".join(str(p) for p in files.values()))
     print(f"{len(results)} image(s) -> {folder}")

@@ -113,7 +113,7 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
     try:
         with tqdm(total=len(shard), desc=f"evaluate {split}", unit="img", disable=not progress) as bar:
             for batch in loader:
-                pred = predict_sdf(model, batch.images[:, 0], batch_size=len(batch))
+                pred = predict_sdf(model, batch.images[:, 0], batch_size=len(batch), views=batch.view_ids[:, 0])
                 grids = [pred.final] + ([pred.coarse] if with_coarse else [])
                 values = torch.cat(grids).detach().float().cpu().numpy()
                 job = (pool.submit(_protocol_voxels, values, model.half_side) if pool is not None

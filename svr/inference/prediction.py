@@ -149,7 +149,7 @@ def check_images(images: torch.Tensor, image_size: int = 64, name: str = "images
 
 @torch.no_grad()
 def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
-                refine: Optional[bool] = None, clip: bool = True) -> SVRPrediction:
+                refine: Optional[bool] = None, clip: bool = True, views=None) -> SVRPrediction:
     """The network's coarse and (unless the model is a coarse-stage one) refined SDFs.
 
     Args:
@@ -160,6 +160,9 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
         clip: intersect the shapes with the cube the objects are normalised into
             (``svr.evaluation.voxels.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
             output of this module and ``svr.evaluate`` goes through it.
+        views: the images' NMR view indices (B,) (0..23, fractional allowed), or one for all: the
+            camera each image was taken from. Needed by a network that reads pixel-aligned image
+            features (``SVRNet.needs_views``), ignored by others.
     Returns:
         SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32
         on the model's device, over the box ``[-half_side, half_side]^3`` (world units).
@@ -168,10 +171,12 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
     check_int(batch_size, "batch_size", minimum=1)
     x = check_images(images, m.image_size)
     use_refiner = m.uses_refiner if refine is None else bool(refine)
+    v = check_input_views(views, len(x), m.net.needs_views)
     m.net.eval()
     coarse, refined = [], []
-    for chunk in x.split(batch_size):
-        out = m.net(chunk.to(m.device, non_blocking=True), refine=use_refiner)
+    for i, chunk in enumerate(x.split(batch_size)):
+        vc = v[i * batch_size:(i + 1) * batch_size].to(m.device) if v is not None else None
+        out = m.net(chunk.to(m.device, non_blocking=True), refine=use_refiner, views=vc)
         coarse.append(out.coarse)
         if out.refined is not None:
             refined.append(out.refined)
@@ -184,17 +189,35 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
     return SVRPrediction(coarse=coarse_t, refined=refined_t)
 
 
+def check_input_views(views, count: int, required: bool, name: str = "views") -> Optional[torch.Tensor]:
+    """(count,) float view indices from ``views`` (one per image, or a single one for all), or None
+    when not given; raises ValueError naming ``name`` when they are required and missing, or malformed."""
+    if views is None:
+        if required:
+            raise ValueError(f"{name}: this network reads image features where each sample projects into the input "
+                             f"view, so it needs each image's NMR view index (0..23, the camera it was taken from)")
+        return None
+    v = torch.as_tensor(views, dtype=torch.float32).reshape(-1).cpu()
+    if v.numel() == 1:
+        v = v.expand(count)
+    if v.numel() != count:
+        raise ValueError(f"{name}: expected one NMR view index per image ({count}) or one for all, got {v.numel()}")
+    if not bool(torch.isfinite(v).all()):
+        raise ValueError(f"{name}: view indices must be finite numbers")
+    return v
+
+
 def predict(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
-            refine: Optional[bool] = None) -> renderer.SDFGrid:
+            refine: Optional[bool] = None, views=None) -> renderer.SDFGrid:
     """SDF grids predicted from images: the model's final output (see ``predict_sdf``).
 
     Returns:
         renderer.SDFGrid with values (B, N, N, N) float32 on the model's device and the box
         ``[-half_side, half_side]^3`` (world, y up, NMR ShapeNet frame).
     """
-    out = predict_sdf(model, images, batch_size, refine)
+    out = predict_sdf(model, images, batch_size, refine, views=views)
     return renderer.SDFGrid(out.final, -model.half_side, model.half_side)
 
 
-__all__ = ["LoadedModel", "load_model", "check_model", "resolve_device", "check_images", "predict_sdf",
+__all__ = ["LoadedModel", "load_model", "check_model", "resolve_device", "check_images", "check_input_views", "predict_sdf",
            "predict"]

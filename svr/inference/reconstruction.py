@@ -22,7 +22,7 @@ from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.outputs import ensure_output_dir, write_mesh, write_npz, write_png
 from svr.data.nmr import check_view_ids
 from svr.inference.images import find_images, find_mask, load_image
-from svr.inference.prediction import LoadedModel, check_model, predict
+from svr.inference.prediction import LoadedModel, check_input_views, check_model, predict
 from svr.view_renders import PREVIEW_VIEWS, render_previews
 
 PathLike = Union[str, os.PathLike]
@@ -53,7 +53,8 @@ class Reconstruction:
 
 def reconstruct(model: LoadedModel, images: torch.Tensor, views: Sequence[int] = PREVIEW_VIEWS,
                 render_size: int = 128, batch_size: int = 16, backend: str = "auto",
-                require_watertight: bool = False, names: Optional[Sequence[str]] = None) -> list[Reconstruction]:
+                require_watertight: bool = False, names: Optional[Sequence[str]] = None,
+                input_views=None) -> list[Reconstruction]:
     """Predicts SDF grids, extracts watertight meshes and renders previews for B images.
 
     Args:
@@ -63,13 +64,15 @@ def reconstruct(model: LoadedModel, images: torch.Tensor, views: Sequence[int] =
         render_size: side of the preview renders.
         require_watertight: raise instead of warning when a mesh is not watertight.
         names: per image, how warnings name it (default "image <b>").
+        input_views: the NMR view index each image was taken from (one per image or one for all);
+            needed by a network with a pixel-aligned head (``predict_sdf``'s ``views``).
     Returns:
         one Reconstruction per image.
     """
     m = check_model(model)
     views = check_view_ids(views)
     check_int(render_size, "render_size", minimum=1)
-    grid = predict(m, images, batch_size)
+    grid = predict(m, images, batch_size, views=input_views)
     names = list(names) if names is not None else [f"image {b}" for b in range(grid.batch_size)]
     if len(names) != grid.batch_size:
         raise ValueError(f"names must have one entry per image ({grid.batch_size}), got {len(names)}")
@@ -175,7 +178,8 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
                 masks: Optional[Sequence[Optional[PathLike]]] = None, mask_suffix: str = "_mask",
                 views: Sequence[int] = PREVIEW_VIEWS, render_size: int = 128, batch_size: int = 16,
                 formats: Sequence[str] = OUTPUT_FORMATS, require_watertight: bool = False,
-                backend: str = "auto", progress: bool = False) -> list[dict[str, Path]]:
+                backend: str = "auto", progress: bool = False, input_view: Optional[float] = None
+                ) -> list[dict[str, Path]]:
     """Reads images (files or folders), reconstructs them and writes the results into ``output_dir``.
 
     Args:
@@ -183,6 +187,8 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
         images: an image file, a folder (every PNG/JPEG in it but masks) or a list of them.
         masks: one mask path (or None) per expanded image; default: ``<stem><mask_suffix>.*`` beside
             each image when it exists.
+        input_view: the NMR view index (0..23, azimuth -15 * view degrees at 30 degrees elevation) of
+            every image's camera; needed by a network with a pixel-aligned head.
         Others: see ``reconstruct`` and ``save_reconstruction``.
     Returns:
         per image, {format: path} of the files written (in the order of the expanded inputs).
@@ -195,6 +201,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
     check_int(batch_size, "batch_size", minimum=1)
     check_int(render_size, "render_size", minimum=1)
     views = check_view_ids(views)
+    check_input_views(input_view, 1, m.net.needs_views, "input_view")
     check_formats(formats)
     folder = ensure_output_dir(output_dir, "output_dir")
     paths = find_images(images, mask_suffix)
@@ -211,7 +218,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
         for start in range(0, len(paths), batch_size):
             batch = torch.stack(tensors[start:start + batch_size])
             recs = reconstruct(m, batch, views, render_size, batch_size, backend, require_watertight,
-                               names=[str(p) for p in paths[start:start + batch_size]])
+                               names=[str(p) for p in paths[start:start + batch_size]], input_views=input_view)
             for k, rec in enumerate(recs):
                 i = start + k
                 results.append(save_reconstruction(rec, folder, names[i], tensors[i], formats,

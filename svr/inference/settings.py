@@ -28,6 +28,8 @@ class InferSettings:
         render_size: side of the preview renders. formats: among npz, ply, obj, png.
         require_watertight: a mesh that is not watertight is an error rather than a warning.
         backend: the renderer's march. progress: a progress bar. paths: as ``PathSettings``.
+        input_view: the NMR view index the images were taken from (networks with a pixel-aligned
+            head need it; None for others).
     """
 
     ckpt_path: str
@@ -43,6 +45,7 @@ class InferSettings:
     require_watertight: bool
     backend: str
     progress: bool
+    input_view: Optional[float]
     paths: PathSettings
 
     def __post_init__(self) -> None:

@@ -40,8 +40,8 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
         obj = int(dataset.offsets[c])
         for v in views:
             image = dataset.views(obj, [v])  # (1, 4, 64, 64)
-            final = predict_sdf(LoadedModel(net), image).final  # what the evaluation scored
-            coarse = predict_sdf(LoadedModel(coarse_net), image, refine=False).coarse
+            final = predict_sdf(LoadedModel(net), image, views=v).final  # what the evaluation scored
+            coarse = predict_sdf(LoadedModel(coarse_net), image, refine=False, views=v).coarse
             hs = net.half_side
             shots = []
             for sdf, view in ((coarse, v), (final, v), (final, v + 6), (final, v + 12)):

@@ -1,7 +1,8 @@
 """The single-view networks (plain nn.Modules) and, in ``svr.models.module``, their LightningModule."""
 from svr.models.decoder import SDFDecoder, sphere_template
 from svr.models.encoder import ImageEncoder
+from svr.models.local import PixelAlignedHead
 from svr.models.network import SVRNet, SVRPrediction
 from svr.models.refiner import BlockRefiner, SDFRefiner
 
-__all__ = ["BlockRefiner", "ImageEncoder", "SDFDecoder", "SDFRefiner", "SVRNet", "SVRPrediction", "sphere_template"]
+__all__ = ["BlockRefiner", "ImageEncoder", "PixelAlignedHead", "SDFDecoder", "SDFRefiner", "SVRNet", "SVRPrediction", "sphere_template"]

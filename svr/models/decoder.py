@@ -194,15 +194,22 @@ class SDFDecoder(nn.Module):
             self.register_buffer("upsample", linear_upsample_matrix(side, grid_resolution), persistent=False)
         # 3D convs are faster on a CPU in channels-last layout (docs/measurements.md).
         self.to(memory_format=torch.channels_last_3d)
+        # World positions (S, S, S, 3) of the head's samples, where a pixel-aligned head reads the image
+        # ("corners": the end samples on the box's faces; "centres": where the template is sampled).
+        h_axis = t_axis if t_axis is not None else torch.linspace(-self.half_side, self.half_side, side)
+        self.register_buffer("head_points", torch.stack(torch.meshgrid(h_axis, h_axis, h_axis, indexing="ij"), -1),
+                             persistent=False)
 
-    def forward(self, latent: torch.Tensor) -> torch.Tensor:
-        """latent: (B, latent_dim) -> (B, N, N, N) SDF (world units) in renderer.SDFGrid's layout."""
+    def features(self, latent: torch.Tensor) -> torch.Tensor:
+        """latent: (B, latent_dim) -> (B, C, s, s, s) the last feature grid (before the head)."""
         check_shape(latent, "latent", f"B, {self.latent_dim}")
         r = self.base_resolution
         x = F.relu(self.fc_norm(self.fc(latent)))
         x = x.view(latent.shape[0], self.channels[0], r, r, r).contiguous(memory_format=torch.channels_last_3d)
-        x = self.blocks(x)
-        raw = self.head(x)[:, 0]
+        return self.blocks(x)
+
+    def finish(self, raw: torch.Tensor) -> torch.Tensor:
+        """The head's raw output (B, S, S, S) -> the bounded SDF (B, N, N, N) (template, bound, upsampling)."""
         b = self.output_bound
         if self.upsampling == "centres":
             sdf = b * torch.tanh((self.template + raw) / b)
@@ -212,3 +219,7 @@ class SDFDecoder(nn.Module):
         if raw.shape[-1] != self.grid_resolution:
             raw = upsample_grid(raw, self.upsample)
         return b * torch.tanh((self.template + raw) / b)
+
+    def forward(self, latent: torch.Tensor) -> torch.Tensor:
+        """latent: (B, latent_dim) -> (B, N, N, N) SDF (world units) in renderer.SDFGrid's layout."""
+        return self.finish(self.head(self.features(latent))[:, 0])

@@ -79,3 +79,19 @@ class ImageEncoder(nn.Module):
         """images: (B, C, H, W) float in [0, 1] -> (B, latent_dim) codes."""
         check_shape(images, "images", f"B, {self.in_channels}, {self.image_size}, {self.image_size}")
         return self.fc(self.convs(images))
+
+    @property
+    def map_channels(self) -> list[int]:
+        """Channels of the maps ``forward_maps`` returns: the input's, then each conv block's."""
+        return [self.in_channels] + [m.out_channels for m in self.convs if isinstance(m, nn.Conv2d)]
+
+    def forward_maps(self, images: torch.Tensor, levels: int) -> tuple[torch.Tensor, list[torch.Tensor]]:
+        """The codes and the first ``levels`` image maps: the input itself, then the output of each
+        conv block (after its ReLU), each half the side of the one before."""
+        check_shape(images, "images", f"B, {self.in_channels}, {self.image_size}, {self.image_size}")
+        maps, x = [images], images
+        for m in self.convs:
+            x = m(x)
+            if isinstance(m, nn.ReLU):
+                maps.append(x)
+        return self.fc(x), maps[:levels]

@@ -113,7 +113,7 @@ class SVRLightningModule(pl.LightningModule):
         if self.stage == "coarse":
             return (self.net.refiner,)
         if self.stage == "refine":
-            return (self.net.encoder, self.net.decoder)
+            return tuple(m for m in (self.net.encoder, self.net.decoder, self.net.local) if m is not None)
         return ()
 
     def apply_stage(self) -> None:
@@ -137,22 +137,25 @@ class SVRLightningModule(pl.LightningModule):
     def uses_refiner(self) -> bool:
         return self.stage != "coarse"
 
-    def stage_sdf(self, images: torch.Tensor) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
-        """(B, 4, 64, 64) images -> the coarse (B, N, N, N) and refined SDF (None in the coarse stage) as
-        this stage trains them (inference: ``svr.inference.prediction.predict_sdf``).
+    def stage_sdf(self, images: torch.Tensor, views: Optional[torch.Tensor] = None
+                  ) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
+        """(B, 4, 64, 64) images (and their (B,) NMR view indices, which a network with a pixel-aligned
+        head needs) -> the coarse (B, N, N, N) and refined SDF (None in the coarse stage) as this
+        stage trains them (inference: ``svr.inference.prediction.predict_sdf``).
 
         Frozen parts run without a graph (they need no gradient)."""
         if self.stage == "refine":
             with torch.no_grad():
-                coarse = self.net.decoder(self.net.encoder(images))
+                coarse = self.net.coarse(images, views)
         else:
-            coarse = self.net.decoder(self.net.encoder(images))
+            coarse = self.net.coarse(images, views)
         refined = self.net.refiner(coarse) if self.uses_refiner else None
         return coarse, refined
 
-    def forward(self, images: torch.Tensor) -> torch.Tensor:
-        """(B, 4, 64, 64) RGBA -> (B, N, N, N) the stage's output SDF (refined unless coarse stage)."""
-        coarse, refined = self.stage_sdf(images)
+    def forward(self, images: torch.Tensor, views: Optional[torch.Tensor] = None) -> torch.Tensor:
+        """(B, 4, 64, 64) RGBA (and their (B,) NMR views) -> (B, N, N, N) the stage's output SDF
+        (refined unless coarse stage)."""
+        coarse, refined = self.stage_sdf(images, views)
         return refined if refined is not None else coarse
 
     # ------------------------------------------------------------------ training
@@ -188,8 +191,7 @@ class SVRLightningModule(pl.LightningModule):
 
     def training_step(self, batch: SVRBatch, batch_idx: int) -> torch.Tensor:
         self._skip_this_step = False
-        images = batch.images[:, 0]
-        coarse, refined = self.stage_sdf(images)
+        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.view_ids[:, 0])
         sdf = refined if refined is not None else coarse
         terms, why = None, None
         if not bool(torch.isfinite(sdf.detach()).all()):
@@ -257,7 +259,7 @@ class SVRLightningModule(pl.LightningModule):
     def validation_step(self, batch: SVRBatch, batch_idx: int) -> None:
         """Fast direct IoU (``svr.evaluation.metrics.iou_direct``) of the stage's output and of the coarse SDF,
         one prediction per batch element from its first view."""
-        coarse, refined = self.stage_sdf(batch.images[:, 0])
+        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.view_ids[:, 0])
         hs = self.net.half_side
         iou_c = iou_direct(coarse, batch.voxels, -hs, hs).to(self.device)
         iou = iou_direct(refined, batch.voxels, -hs, hs).to(self.device) if refined is not None else iou_c

@@ -11,6 +11,7 @@ import renderer
 from sdfcommon.tooling.checks import check_instance, check_positive
 from svr.models.decoder import SDFDecoder
 from svr.models.encoder import ImageEncoder
+from svr.models.local import PixelAlignedHead
 from svr.models.refiner import BlockRefiner, SDFRefiner
 
 
@@ -41,10 +42,13 @@ class SVRNet(nn.Module):
         refiner: coarse SDF -> refined SDF (B, N, N, N) (BlockRefiner or SDFRefiner).
         half_side: the SDF grid covers ``[-half_side, half_side]^3`` (world units); the normalised
             objects lie in [-0.5, 0.5]^3, so a value above 0.5 leaves a margin.
+        local: an optional PixelAlignedHead that corrects the decoder's SDF from image features read
+            where each sample projects into the input view; a network with one needs the input
+            images' NMR view indices (``forward(images, views=...)``).
     """
 
     def __init__(self, encoder: ImageEncoder, decoder: SDFDecoder, refiner: BlockRefiner | SDFRefiner,
-                 half_side: float = 0.6) -> None:
+                 half_side: float = 0.6, local: PixelAlignedHead | None = None) -> None:
         super().__init__()
         for name, mod, cls in (("encoder", encoder, ImageEncoder), ("decoder", decoder, SDFDecoder),
                                ("refiner", refiner, BlockRefiner)):
@@ -60,10 +64,28 @@ class SVRNet(nn.Module):
         ref_n = getattr(refiner, "grid_resolution", None)
         if dec_n is not None and ref_n is not None and dec_n != ref_n:
             raise ValueError(f"decoder.grid_resolution ({dec_n}) must equal refiner.grid_resolution ({ref_n})")
+        if local is not None:
+            check_instance(local, "local", PixelAlignedHead, "a PixelAlignedHead or None")
+            have = encoder.map_channels[:len(local.image_channels)]
+            if list(local.image_channels) != have:
+                raise ValueError(f"local.image_channels {list(local.image_channels)} must match the encoder's first "
+                                 f"maps' channels {have} (the input's, then each conv block's)")
+            if local.volume_channels != decoder.channels[-1]:
+                raise ValueError(f"local.volume_channels ({local.volume_channels}) must equal the decoder's last "
+                                 f"channels ({decoder.channels[-1]})")
+            if local.image_size != encoder.image_size:
+                raise ValueError(f"local.image_size ({local.image_size}) must equal encoder.image_size "
+                                 f"({encoder.image_size})")
         self.encoder = encoder
         self.decoder = decoder
         self.refiner = refiner
+        self.local = local
         self.half_side = float(half_side)
+
+    @property
+    def needs_views(self) -> bool:
+        """Whether the network reads the input view's camera (it has a pixel-aligned head)."""
+        return self.local is not None
 
     @property
     def grid_resolution(self) -> int:
@@ -74,9 +96,22 @@ class SVRNet(nn.Module):
         """Spacing of the SDF samples (world units)."""
         return 2.0 * self.half_side / (self.grid_resolution - 1)
 
-    def forward(self, images: torch.Tensor, refine: bool = True) -> SVRPrediction:
-        """images: (B, 4, 64, 64) RGBA in [0, 1] -> SVRPrediction (coarse and, with refine, refined)."""
-        coarse = self.decoder(self.encoder(images))
+    def coarse(self, images: torch.Tensor, views: torch.Tensor | None = None) -> torch.Tensor:
+        """images: (B, 4, 64, 64) RGBA in [0, 1] (and, with a pixel-aligned head, views: (B,) their NMR
+        view indices) -> (B, N, N, N) the decoder's SDF."""
+        if self.local is None:
+            return self.decoder(self.encoder(images))
+        if views is None:
+            raise ValueError("views: this network reads image features where each sample projects into the input "
+                             "view, so it needs the input images' NMR view indices (0..23), one per image")
+        code, maps = self.encoder.forward_maps(images, len(self.local.image_channels))
+        feats = self.local(self.decoder.features(code), maps, views, self.decoder.head_points)
+        return self.decoder.finish(self.decoder.head(feats)[:, 0])
+
+    def forward(self, images: torch.Tensor, refine: bool = True, views: torch.Tensor | None = None) -> SVRPrediction:
+        """images: (B, 4, 64, 64) RGBA in [0, 1] -> SVRPrediction (coarse and, with refine, refined);
+        ``views`` (B,) NMR view indices of the images, needed with a pixel-aligned head."""
+        coarse = self.coarse(images, views)
         refined = self.refiner(coarse) if refine else None
         return SVRPrediction(coarse=coarse, refined=refined)
 
