@@ -8,7 +8,7 @@ the decoder's feature grid (16^3 in model=small), where a sample costs 8x less t
 sub-samples become channels of the cell), so the silhouette reaches the head at full resolution."""
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Optional, Sequence
 
 import torch
 from torch import nn
@@ -36,10 +36,13 @@ class PixelAlignedHead(nn.Module):
         image_size: side of the input images (the camera's image size).
         head_stride: the decoder's ``head_stride``: 2 when the head's grid has twice the feature
             grid's side (8 input-image samples per cell), 1 when they match (one).
+        mirror_axis: None, or the world axis (0 = x, 1 = y, 2 = z) across whose plane through the
+            origin the objects are mirror-symmetric: each cell then also reads the image where its
+            mirror image projects, a second look at its side of the object (as Ladybird does).
     """
 
     def __init__(self, image_channels: Sequence[int] = (4, 16, 32), volume_channels: int = 16, hidden: int = 64,
-                 image_size: int = 64, head_stride: int = 2) -> None:
+                 image_size: int = 64, head_stride: int = 2, mirror_axis: Optional[int] = None) -> None:
         super().__init__()
         self.image_channels = check_int_sequence(image_channels, "image_channels", minimum=1)
         check_int(volume_channels, "volume_channels", minimum=1)
@@ -51,7 +54,15 @@ class PixelAlignedHead(nn.Module):
         if head_stride not in (1, 2):
             raise ValueError(f"head_stride must be 1 or 2, got {head_stride!r}")
         self.head_stride = head_stride
-        width = volume_channels + 4 + head_stride ** 3 * self.image_channels[0] + sum(self.image_channels[1:])
+        if mirror_axis == "auto":
+            raise ValueError("mirror_axis 'auto' is resolved by the training command from the training voxels "
+                             "(svr.data.symmetry); a network built directly needs None, 0 (x), 1 (y) or 2 (z)")
+        if mirror_axis is not None and mirror_axis not in (0, 1, 2):
+            raise ValueError(f"mirror_axis must be None, 0 (x), 1 (y) or 2 (z), got {mirror_axis!r}")
+        self.mirror_axis = mirror_axis
+        looks = 2 if mirror_axis is not None else 1
+        width = volume_channels + 3 + looks * (1 + head_stride ** 3 * self.image_channels[0]
+                                               + sum(self.image_channels[1:]))
         self.first = nn.Linear(width, hidden)
         self.out = nn.Linear(hidden, volume_channels)
         nn.init.zeros_(self.out.weight)  # the untrained head leaves the features as they are
@@ -76,9 +87,10 @@ class PixelAlignedHead(nn.Module):
             points: (S, S, S, 3) world positions of the head's samples (renderer.SDFGrid layout),
                 S = s or 2s.
         Returns:
-            (B, s^3, width): per cell (cells in renderer.SDFGrid order) its C features, the input
-            image at its sub-samples (sub-sample major, ``head_stride**3`` x C_0), the other maps at
-            its centre, its centre's position (3) and depth along the view minus the camera's
+            (B, s^3, width): per cell (cells in renderer.SDFGrid order) its C features and its
+            centre's position (3), then per look (the cell, and with ``mirror_axis`` its mirror
+            image) the input image at its sub-samples (sub-sample major, ``head_stride**3`` x C_0),
+            the other maps at its centre and the centre's depth along the view minus the camera's
             distance to the origin (1).
         """
         b, s = volume.shape[0], volume.shape[-1]
@@ -105,12 +117,21 @@ class PixelAlignedHead(nn.Module):
             return F.grid_sample(m, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, :, 0] \
                 .transpose(1, 2)
 
-        grid_c, depth_c = grid_of(centres)
-        grid_s, _ = grid_of(sub.reshape(-1, 3))
-        image = sample(maps[0], grid_s).reshape(b, s ** 3, f ** 3 * self.image_channels[0])
-        feats = volume.permute(0, 2, 3, 4, 1).reshape(b, s ** 3, self.volume_channels)
         dist = cams.eye.norm(dim=-1)[:, None]  # depth relative to the origin's
-        return torch.cat([feats, image, *(sample(m, grid_c) for m in maps[1:]),
-                          centres.expand(b, -1, -1), (depth_c - dist).unsqueeze(-1)], dim=-1)
+
+        def look(sub_pts: torch.Tensor) -> list[torch.Tensor]:
+            grid_c, depth_c = grid_of(sub_pts.mean(1))
+            grid_s, _ = grid_of(sub_pts.reshape(-1, 3))
+            image = sample(maps[0], grid_s).reshape(b, s ** 3, f ** 3 * self.image_channels[0])
+            return [image, *(sample(m, grid_c) for m in maps[1:]), (depth_c - dist).unsqueeze(-1)]
+
+        feats = volume.permute(0, 2, 3, 4, 1).reshape(b, s ** 3, self.volume_channels)
+        parts = [feats, centres.expand(b, -1, -1), *look(sub)]
+        if self.mirror_axis is not None:
+            flip = torch.ones(3, dtype=sub.dtype, device=sub.device)
+            flip[self.mirror_axis] = -1.0
+            parts += look(sub * flip)
+        return torch.cat(parts, dim=-1)
+
 
 __all__ = ["PixelAlignedHead"]

@@ -10,6 +10,7 @@ the same folder; only global rank 0 writes files."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import logging
 import sys
 import warnings
@@ -17,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
 import pytorch_lightning as pl
 from hydra.utils import instantiate
 from pytorch_lightning.callbacks import ModelCheckpoint
@@ -28,6 +30,7 @@ from sdfcommon.tooling.host_memory import keep_freed_memory
 from sdfcommon.tooling.outputs import remove_stale_temporaries, write_csv
 from sdfcommon.tooling.settings import settings_record
 
+from svr.data.symmetry import AXIS_NAMES, mirror_scores, symmetry_axis
 from svr.distributed import launch_rank_is_zero
 from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint, load_network_weights
 from svr.models.module import SVRLightningModule
@@ -103,6 +106,25 @@ def build_scene(loss: LossSettings, shading_model) -> renderer.Scene:
     if use:
         return shading_model.scene(effects=("silhouette", "shading"), silhouette_sigma=loss.silhouette_sigma)
     return renderer.Scene(effects=("silhouette",), silhouette_sigma=loss.silhouette_sigma)
+
+
+def resolve_mirror_axis(settings: TrainSettings, datamodule) -> TrainSettings:
+    """The settings with a pixel-aligned head's ``mirror_axis: auto`` replaced by the axis the
+    training split's voxels are mirror-symmetric across (``svr.data.symmetry.symmetry_axis``; None
+    when none is), so the network and every checkpoint's model config hold the measured value."""
+    local = settings.model.get("local") if isinstance(settings.model, dict) else None
+    if not isinstance(local, dict) or local.get("mirror_axis") != "auto":
+        return settings
+    datamodule.prepare_data()
+    train_set = datamodule.dataset("train")
+    voxels = np.stack([train_set.voxels(g).numpy() for g in range(len(train_set))])
+    scores = mirror_scores(voxels)
+    axis = symmetry_axis(voxels)
+    log.info("mirror symmetry of the %d training shapes (mean IoU with their mirror across x, y, z = 0): %s -> "
+             "model.local.mirror_axis=%s", len(voxels), ", ".join(f"{n} {v:.3f}" for n, v in zip(AXIS_NAMES, scores)),
+             axis)
+    model = {**settings.model, "local": {**local, "mirror_axis": axis}}
+    return dataclasses.replace(settings, model=model)
 
 
 def build_module(settings: TrainSettings, net: SVRNet, stage: str, datamodule) -> SVRLightningModule:
@@ -293,6 +315,7 @@ def train(settings: TrainSettings, run_dir: str | Path) -> TrainResult:
 
     pl.seed_everything(int(settings.seed), workers=True)
     datamodule = instantiate(settings.data)
+    settings = resolve_mirror_axis(settings, datamodule)
     net = instantiate(settings.model)
     if not isinstance(net, SVRNet):
         raise TypeError(f"model must instantiate a svr.models.SVRNet, got {type(net).__name__}")

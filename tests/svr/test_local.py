@@ -34,8 +34,8 @@ def test_each_cell_reads_the_silhouette_where_it_projects():
     view = 5
     image = sphere_silhouette((0.3, 0.0, 0.0), 0.2, view)
     x = head.cell_inputs(torch.zeros(1, 2, 8, 8, 8), [image], torch.tensor([view]), points)
-    # Columns: 2 features, then 8 sub-samples x RGBA, so the alphas are 2 + 4k + 3.
-    alpha = x[0, :, [2 + 4 * k + 3 for k in range(8)]]  # (512 cells, 8)
+    # Columns: 2 features, 3 position, then 8 sub-samples x RGBA, so the alphas are 5 + 4k + 3.
+    alpha = x[0, :, [5 + 4 * k + 3 for k in range(8)]]  # (512 cells, 8)
     sub = points.reshape(8, 2, 8, 2, 8, 2, 3).permute(0, 2, 4, 1, 3, 5, 6).reshape(512, 8, 3)
     eye = renderer.Cameras.nmr([view]).eye[0]
     d = sub.reshape(-1, 3) - eye

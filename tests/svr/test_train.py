@@ -281,3 +281,28 @@ def test_command_line_multirun_and_killed_run_resumes(tmp_path, data_overrides):
                              timeout=600)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert load_checkpoint(tmp_path / "resumed" / "coarse" / "checkpoints" / "final.ckpt")["global_step"] == step + 2
+
+
+def test_pixel_model_trains_and_its_mirror_axis_is_measured_from_the_training_voxels(tmp_path, data_overrides):
+    from svr.data.symmetry import symmetry_axis
+    from svr.inference.prediction import load_model, predict_sdf
+
+    cfg = compose_train(tiny_overrides(data_overrides, 2, "stage=coarse", "model=pixel",
+                                       "model.local.mirror_axis=auto"))
+    settings = build_settings(cfg)
+    dm = instantiate(cfg.data)
+    resolved = stages.resolve_mirror_axis(settings, dm)
+    train_set = dm.dataset("train")
+    expected = symmetry_axis(torch.stack([train_set.voxels(g) for g in range(len(train_set))]).numpy())
+    assert resolved.model["local"]["mirror_axis"] == expected
+    assert settings.model["local"]["mirror_axis"] == "auto"  # the command's record keeps what was asked
+
+    result = train(cfg, tmp_path / "run")
+    ckpt = result.stages[0].best
+    assert load_checkpoint(ckpt)["sdfdiff"]["model_config"]["local"]["mirror_axis"] == expected
+    model = load_model(ckpt, "cpu")
+    assert model.net.needs_views and model.net.local.mirror_axis == expected
+    images = torch.stack([train_set.views(0, [3])[0]])
+    with pytest.raises(ValueError, match="views"):
+        predict_sdf(model, images)
+    assert predict_sdf(model, images, views=[3]).final.shape[0] == 1
