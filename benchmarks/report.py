@@ -22,13 +22,15 @@ from sdfcommon.tooling.outputs import atomic_write, write_text
 
 @dataclass
 class Point:
-    """One measured setting: its label, cost (seconds) and error (lower is better for both)."""
+    """One measured setting: its label, cost (seconds) and error (lower is better for both), and
+    optionally ``error_interval``, the (low, high) interval of the error (drawn as an error bar)."""
 
     label: str
     seconds: float
     error: float
     default: bool = False
     extra: dict = field(default_factory=dict)
+    error_interval: Optional[tuple[float, float]] = None
 
 
 def pareto_front(points: Sequence[Point]) -> list[bool]:
@@ -65,15 +67,18 @@ def run_mvr(target: str, out_dir: Path, overrides: Sequence[str] = ()) -> dict:
 
 def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, ylabel: str,
                   logx: bool = True, logy: bool = True,
-                  curves: Optional[Mapping[str, Sequence[tuple[float, float]]]] = None) -> None:
+                  curves: Optional[Mapping[str, Sequence[tuple[float, float]]]] = None,
+                  figsize: tuple[float, float] = (6.0, 4.2)) -> None:
     """Error against time, the Pareto front joined and marked, the default setting highlighted.
 
     Args:
-        points: the settings measured (x: ``seconds``, y: ``error``).
+        points: the settings measured (x: ``seconds``, y: ``error``; an error bar where the point
+            has an ``error_interval``).
         path: the PNG to write (atomically).
         logx, logy: log axes, where the values span at least a factor of 3 (else linear).
         curves: optional thin lines behind the points, label -> [(seconds, error), ...] (e.g. a
             training run's validation error over time; its end is usually the run's point).
+        figsize: the figure's (width, height) in inches (larger where many points need labels).
     """
     import matplotlib  # heavy: only the plots need it
 
@@ -82,13 +87,17 @@ def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, 
     from matplotlib import ticker  # heavy: as above
 
     front = pareto_front(points)
-    fig, ax = plt.subplots(figsize=(6.0, 4.2), dpi=110)
+    fig, ax = plt.subplots(figsize=figsize, dpi=110)
     for curve in (curves or {}).values():
         if len(curve) > 1:
             ax.plot([c[0] for c in curve], [c[1] for c in curve], color="tab:gray", lw=0.7, alpha=0.5, zorder=1)
     # Labels alternate above and below their points, in order of time, so that neighbours collide less.
     rank = {id(p): i for i, p in enumerate(sorted(points, key=lambda p: (p.seconds, p.error)))}
     for p, on in zip(points, front):
+        if p.error_interval is not None:
+            lo, hi = p.error_interval
+            ax.errorbar(p.seconds, p.error, yerr=[[max(p.error - lo, 0.0)], [max(hi - p.error, 0.0)]], fmt="none",
+                         ecolor="tab:red" if p.default else "tab:gray", elinewidth=0.8, capsize=2, zorder=2)
         ax.scatter(p.seconds, p.error, s=70 if p.default else 30, marker="*" if p.default else "o",
                    color="tab:red" if p.default else ("tab:blue" if on else "tab:gray"), zorder=3)
         ax.annotate(p.label, (p.seconds, p.error), textcoords="offset points",
@@ -98,7 +107,8 @@ def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, 
         ax.plot([p.seconds for p in fp], [p.error for p in fp], color="tab:blue", lw=1, label="Pareto front")
     ax.scatter([], [], marker="*", color="tab:red", s=70, label="default")
     xs = [p.seconds for p in points if math.isfinite(p.seconds)] + [c[0] for cv in (curves or {}).values() for c in cv]
-    ys = [p.error for p in points if math.isfinite(p.error)] + [c[1] for cv in (curves or {}).values() for c in cv]
+    ys = ([p.error for p in points if math.isfinite(p.error)] + [c[1] for cv in (curves or {}).values() for c in cv]
+          + [e for p in points if p.error_interval is not None for e in p.error_interval if math.isfinite(e)])
     # A log axis over less than a factor of 3 has no labelled tick: linear reads better there.
     for axis, values, log in ((ax.xaxis, xs, logx), (ax.yaxis, ys, logy)):
         if log and values and min(values) > 0 and max(values) / min(values) >= 3:
@@ -144,7 +154,10 @@ def markdown_table(points: Sequence[Point], columns: Sequence[tuple[str, str]],
 
 
 def fmt_value(v) -> str:
-    """A table cell: floats to about 4 significant digits (small ones in e-notation), else ``str``."""
+    """A table cell: floats to about 4 significant digits (small ones in e-notation), a (low, high)
+    pair of floats as ``[low, high]``, else ``str``."""
+    if isinstance(v, tuple) and len(v) == 2 and all(isinstance(x, float) for x in v):
+        return f"[{fmt_value(v[0])}, {fmt_value(v[1])}]"
     if isinstance(v, float):
         if v == 0:
             return "0"
@@ -230,12 +243,14 @@ def tradeoff_section(points: Sequence[Point], columns: Sequence[tuple[str, str]]
                      setting_name: str, xlabel: str, ylabel: str, unit: str = "s", error_name: str = "error",
                      logx: bool = True, logy: bool = True,
                      curves: Optional[Mapping[str, Sequence[tuple[float, float]]]] = None,
-                     heading: str = "###", tolerance: float = 0.1) -> str:
+                     heading: str = "###", tolerance: float = 0.1, choice: Optional[str] = None,
+                     figsize: tuple[float, float] = (6.0, 4.2)) -> str:
     """One study section: writes the plot to ``png`` and returns the markdown: a heading, the table
     (``markdown_table``), the plot (linked by file name: the report sits beside it) and
-    ``reading``'s paragraph (with ``tolerance``)."""
-    plot_tradeoff(points, png, title, xlabel, ylabel, logx=logx, logy=logy, curves=curves)
-    choose = "**What to choose.** " + reading(points, unit, error_name, tolerance)
+    ``reading``'s paragraph (with ``tolerance``), or ``choice`` instead where the part words its own
+    (e.g. from intervals, which ``reading`` does not weigh)."""
+    plot_tradeoff(points, png, title, xlabel, ylabel, logx=logx, logy=logy, curves=curves, figsize=figsize)
+    choose = "**What to choose.** " + (choice if choice is not None else reading(points, unit, error_name, tolerance))
     return "\n".join([f"{heading} {title}", "", markdown_table(points, columns, setting_name), "",
                       f"![{title}]({png.name})", "", choose, ""])
 
