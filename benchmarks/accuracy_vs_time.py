@@ -144,8 +144,8 @@ parts:
             image error against a high-accuracy render, and time per frame, on the fused CPU
             kernel (and on CUDA where it runs: a second section)
   mvr       multi-view reconstruction error against time for the schedule
-  svr       validation IoU against training time for the model width, the refiner and the
-            supervised views
+  svr       validation IoU (with a 95% interval over objects) against training time for the
+            model, the refiner, the supervised views, the render size and the head resolution
 """
 
 
@@ -160,7 +160,8 @@ def main(argv: Optional[list[str]] = None) -> None:
                     help="run folders, dataset cache, kept sections (default: outputs/study[_quick]/work)")
     ap.add_argument("--no-cuda", action="store_true",
                     help="renderer part on the CPU only (default: also on CUDA where its kernel runs)")
-    ap.add_argument("--svr-steps", default=None, help="coarse,refine training steps per run (default 200,100)")
+    ap.add_argument("--svr-steps", default=None, help="coarse,refine training steps per run (default "
+                    f"{','.join(map(str, accuracy_vs_time_svr.DEFAULT_STEPS))})")
     ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
     ap.add_argument("--report-only", action="store_true",
                     help="run nothing: rewrite the report from the sections kept under --work")

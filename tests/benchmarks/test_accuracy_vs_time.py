@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from benchmarks import accuracy_vs_time, accuracy_vs_time_renderer, accuracy_vs_time_svr
-from benchmarks.report import Point, cheapest_within, markdown_table, pareto_front, reading
+from benchmarks.report import Point, cheapest_within, fmt_value, markdown_table, pareto_front, reading
 
 
 def test_pareto_front():
@@ -17,6 +18,7 @@ def test_pareto_front():
     assert pareto_front(pts) == [True, True, False, True, True]
     table = markdown_table(pts, [("time", "seconds"), ("error", "error")])
     assert table.count("\n") == len(pts) + 1 and "| c | 3 | 3 |  |" in table
+    assert fmt_value((0.25, 0.3125)) == "[0.25, 0.3125]" and fmt_value((1, 2)) == "(1, 2)"
 
 
 def test_reading_names_the_front_the_cheap_choice_and_the_default():
@@ -47,8 +49,37 @@ def test_bad_arguments_name_themselves():
             accuracy_vs_time_svr.parse_steps(bad)
     with pytest.raises(ValueError, match="views"):
         accuracy_vs_time_svr.Run("x", views=25)
+    with pytest.raises(ValueError, match="render_size"):
+        accuracy_vs_time_svr.Run("x", render_size=128)
+    with pytest.raises(ValueError, match="head"):
+        accuracy_vs_time_svr.Run("x", head=16)
     with pytest.raises(ValueError, match="reps"):
         accuracy_vs_time_renderer.Renderer("cpu", "auto", reference_grid=16, reps=0)
+
+
+def test_study_runs_vary_one_setting_each():
+    runs = accuracy_vs_time_svr.runs()
+    default = next(r for r in runs if r.default)
+    fields = ("model", "views", "render_size", "head", "coarse_only")
+    for r in runs:
+        changed = [f for f in fields if getattr(r, f) != getattr(default, f)]
+        assert len(changed) == (0 if r is default else 1), (r.label, changed)
+    assert {r.axis for r in runs} == {"default", "refiner", "model", "views", "render size", "head"}
+    h64 = next(r for r in runs if r.head == 64)
+    overrides = accuracy_vs_time_svr.run_overrides(h64, [], (2, 2), 2, accuracy_vs_time_svr.Path("c"), False)
+    assert "model.decoder.channels=[64,32,16,8]" in overrides and "loss.render_size=64" in overrides
+
+
+def test_object_scores_average_categories_and_compare_by_interval():
+    scores = accuracy_vs_time_svr.ObjectScores(np.array([0, 0, 1]), np.array([0.2, 0.4, 0.9]))
+    mean, (lo, hi) = scores.benchmark_mean()
+    assert mean == pytest.approx(0.6) and lo <= mean <= hi  # (0.3 + 0.9) / 2, not the objects' 0.5
+    ref = Point("ref", 10.0, 0.4, default=True, extra={"iou": 0.6, "iou_interval": (0.5, 0.7)})
+    near = Point("near", 5.0, 0.35, extra={"iou": 0.65, "iou_interval": (0.55, 0.75)})
+    far = Point("far", 20.0, 0.1, extra={"iou": 0.9, "iou_interval": (0.8, 0.95)})
+    assert "not resolved" in accuracy_vs_time_svr.compare(near, ref)
+    assert "+0.300, higher, resolved" in accuracy_vs_time_svr.compare(far, ref) and "(2.00x the time)" in \
+        accuracy_vs_time_svr.compare(far, ref)
 
 
 def test_timeline_subtracts_the_validations(tmp_path):
@@ -78,6 +109,13 @@ def test_every_part_runs_at_toy_size_into_one_report(tmp_path):
     # A point per stage of each training run: after the coarse stage and after the refine stage.
     svr_rows = [line for line in md.splitlines() if line.startswith(("| tiny ", "| **tiny "))]
     assert len(svr_rows) == sum(1 if r.coarse_only else 2 for r in accuracy_vs_time_svr.runs(True))
+    # Each point's val IoU lies in its 95% interval (a column "[lo, hi]"), and the reading weighs them.
+    assert "| val IoU | 95% interval |" in md and "validation objects" in md
+    for line in svr_rows:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        iou, (lo, hi) = float(cells[1]), (float(x) for x in cells[2].strip("[]").split(","))
+        assert 0.0 <= lo <= iou <= hi <= 1.0, line
+    assert "resolved" in md
     assert not list(docs.glob("*.tmp")) and not list(docs.glob(".*.tmp"))
 
     # The report is rebuilt from the kept sections; a part never run says how to run it.
