@@ -100,7 +100,7 @@ def write_report(docs: Path, work: Path) -> Path:
         "What each setting costs and what it buys, measured on one machine: the renderer's march and "
         "intersection settings, resolutions and effects; the multi-view reconstruction schedule; the "
         "single-view network, refiner and supervision. Regenerate with "
-        "`python -m benchmarks.accuracy_vs_time` (all parts, about 20 minutes on 2 CPU cores) or some parts with "
+        "`python -m benchmarks.accuracy_vs_time` (all parts, about 25 minutes on 2 CPU cores) or some parts with "
         "`--parts renderer,mvr,svr` (the report keeps the other parts' latest results).",
         "",
         *(["**This holds `--quick` results: toy sizes that only check the code paths; their numbers mean "
@@ -133,7 +133,7 @@ def write_report(docs: Path, work: Path) -> Path:
 
 EXAMPLES = """\
 examples:
-  python -m benchmarks.accuracy_vs_time                          # all parts, ~20 min on 2 CPU cores
+  python -m benchmarks.accuracy_vs_time                          # all parts, ~25 min on 2 CPU cores
   python -m benchmarks.accuracy_vs_time --parts mvr,svr          # rerun some parts; the others' last results stay
   python -m benchmarks.accuracy_vs_time --quick                  # toy sizes (a minute): checks the code paths
   python -m benchmarks.accuracy_vs_time --parts svr --svr-steps 2000,500   # a longer training budget
