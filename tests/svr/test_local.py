@@ -68,9 +68,9 @@ def test_the_untrained_head_leaves_the_features_and_trains_them():
 
 def test_model_pixel_builds_trains_and_needs_views():
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        cfg = compose("train", overrides=["model=pixel"])
+        cfg = compose("train", overrides=["model=pixel", "model.local.mirror_axis=0"])
     net = instantiate(cfg.model)
-    assert isinstance(net.local, PixelAlignedHead) and net.needs_views
+    assert isinstance(net.local, PixelAlignedHead) and net.needs_views and net.local.mirror_axis == 0
     images = torch.rand(2, 4, 64, 64)
     with pytest.raises(ValueError, match="views"):
         net(images)
