@@ -6,7 +6,8 @@ instead of images, a diagnostic of what the architecture can read from one image
 the shipped recipe (image losses only, as the paper), silhouette retrieval, the lookup ceiling (best
 training object's voxels), the category mean shape and the mean shape. Each trained row is
 ``python -m svr.demo`` with the preset's experiment into ``<work>/<row>`` (a stopped ladder resumes its
-runs; a finished run is only scored again); ``--set`` passes hydra overrides to every trained row.
+runs; a row whose folder holds a finished run's scores is reused, ``--rescore`` scores it again);
+``--set`` passes hydra overrides to every trained row.
 The gaps between rows say what limits accuracy (oracle to 3D-supervised: what one image and this
 network cannot recover; 3D-supervised to shipped: what image-only supervision loses; shipped to
 retrieval: whether the network beats a lookup). It writes docs/accuracy_ladder_<preset>.md, .json
@@ -95,9 +96,14 @@ def lookup_per_object(preset: str, overrides: Sequence[str] = ()) -> tuple[dict[
     return out, names
 
 
-def train_row(row: str, preset: str, work: Path, extra: Sequence[str], quiet: bool) -> Path:
-    """Trains (or resumes, or only scores) one trained row with ``python -m svr.demo``; returns its folder."""
+def train_row(row: str, preset: str, work: Path, extra: Sequence[str], quiet: bool, rescore: bool = False) -> Path:
+    """Trains (or resumes, or only scores) one trained row with ``python -m svr.demo``; returns its folder.
+    A row whose folder already holds the scores of a finished run (``timings.json``, which the demo
+    writes last, and ``per_object.csv``) is reused as it is unless ``rescore``."""
     out = work / row
+    if not rescore and (out / "timings.json").is_file() and (out / "per_object.csv").is_file():
+        print(f"[{row}] reusing the scores in {out} (--rescore scores the run again)", file=sys.stderr, flush=True)
+        return out
     cmd = [sys.executable, "-m", "svr.demo", f"out={out}", f"experiment={EXPERIMENTS[preset]}",
            *TRAINED[row], *extra] + (["quiet=true"] if quiet else [])
     print(f"[{row}] {' '.join(cmd[1:])}", file=sys.stderr, flush=True)
@@ -218,12 +224,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--out", type=Path, default=None,
                         help="stem of the .md/.json/.png outputs (default: docs/accuracy_ladder_<preset>)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--rescore", action="store_true",
+                        help="score a row's finished run again even where its folder holds its scores")
     args = parser.parse_args(argv)
     if "shipped" not in args.rows:
         parser.error("--rows must include shipped: its run scores the oracle and the baselines")
     work = (args.work or ROOT / "outputs" / f"ladder_{args.preset}").resolve()
     start = time.time()
-    objects = {row: read_per_object(train_row(row, args.preset, work, args.overrides, args.quiet) / "per_object.csv")
+    objects = {row: read_per_object(train_row(row, args.preset, work, args.overrides, args.quiet,
+                                              args.rescore) / "per_object.csv")
                for row in args.rows}
     data = [o for o in args.overrides if o.startswith("data.")]
     lookup, categories = lookup_per_object(args.preset, data)

@@ -108,7 +108,7 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
             train_settings = train_settings.with_ckpt_path(str(resume))
         folder.root.mkdir(parents=True, exist_ok=True)
         write_text(folder.config, OmegaConf.to_yaml(record if record is not None else settings_record(train_settings)))
-        print(f"training experiment=demo into {folder.root} (stages: {', '.join(schedule)})", flush=True)
+        print(f"training {_experiment()} into {folder.root} (stages: {', '.join(schedule)})", flush=True)
         try:
             train(train_settings, folder.root)
         except TrainingStopped:
@@ -131,6 +131,12 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
     return {**result, **timings}
 
 
+def _experiment() -> str:
+    """``experiment=<name>`` as hydra composed it (the demo's own, unless the command line chose another)."""
+    choices = HydraConfig.get().runtime.choices if HydraConfig.initialized() else {}
+    return f"experiment={choices.get('experiment') or 'demo'}"
+
+
 def _print_summary(result: dict, timings: dict, out_dir: Path) -> None:
     print()
     print(result["table"])
@@ -141,8 +147,8 @@ def _print_summary(result: dict, timings: dict, out_dir: Path) -> None:
     print("steps (planned / reached): " + ", ".join(f"{k} {v['planned']} / {v['reached']}" for k, v in steps.items()))
     short = [k for k, v in steps.items() if v["reached"] is not None and v["reached"] < v["planned"]]
     if short:
-        print(f"warning: the time cap stopped {', '.join(short)} early: this run trained less than the demo's "
-              f"schedule, so its table differs from docs/demo.md's")
+        print(f"warning: the time cap stopped {', '.join(short)} early: this run trained less than its "
+              f"schedule, so its table differs from the documented one (docs/demo.md, README)")
     print(f"outputs in {out_dir}:")
     for f in result["files"]:
         print(f"  {f}")

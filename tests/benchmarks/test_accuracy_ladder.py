@@ -71,3 +71,19 @@ def test_read_per_object(tmp_path):
     path.write_text("category_id,category,object_index,views,iou_mean,iou_oracle_mean\n"
                     "03001627,chair,4,24,0.5,0.99\n")
     assert read_per_object(path) == {("chair", 4): {"iou_mean": 0.5, "iou_oracle_mean": 0.99}}
+
+
+def test_a_scored_row_is_reused_unless_rescore(tmp_path, monkeypatch):
+    import benchmarks.accuracy_ladder as al
+
+    calls = []
+    monkeypatch.setattr(al.subprocess, "run", lambda cmd, **kw: calls.append(cmd))
+    row = tmp_path / "shipped"
+    row.mkdir()
+    (row / "per_object.csv").write_text("category,object_index,iou_mean\nchair,0,0.5\n")
+    assert al.train_row("shipped", "demo", tmp_path, [], quiet=True) == row  # no timings.json: not scored yet
+    assert len(calls) == 1
+    (row / "timings.json").write_text("{}")
+    assert al.train_row("shipped", "demo", tmp_path, [], quiet=True) == row and len(calls) == 1  # reused
+    al.train_row("shipped", "demo", tmp_path, ["seed=1"], quiet=True, rescore=True)
+    assert len(calls) == 2 and "seed=1" in calls[1] and f"out={row}" in calls[1]
