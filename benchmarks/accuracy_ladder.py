@@ -96,12 +96,18 @@ def lookup_per_object(preset: str, overrides: Sequence[str] = ()) -> tuple[dict[
     return out, names
 
 
+def scored(folder: Path) -> bool:
+    """Whether a row's folder holds the scores of a finished run (``timings.json``, which the demo
+    writes last, and ``per_object.csv``)."""
+    return (folder / "timings.json").is_file() and (folder / "per_object.csv").is_file()
+
+
 def train_row(row: str, preset: str, work: Path, extra: Sequence[str], quiet: bool, rescore: bool = False) -> Path:
     """Trains (or resumes, or only scores) one trained row with ``python -m svr.demo``; returns its folder.
-    A row whose folder already holds the scores of a finished run (``timings.json``, which the demo
-    writes last, and ``per_object.csv``) is reused as it is unless ``rescore``."""
+    A row whose folder already holds the scores of a finished run (``scored``) is reused as it is
+    unless ``rescore``."""
     out = work / row
-    if not rescore and (out / "timings.json").is_file() and (out / "per_object.csv").is_file():
+    if not rescore and scored(out):
         print(f"[{row}] reusing the scores in {out} (--rescore scores the run again)", file=sys.stderr, flush=True)
         return out
     cmd = [sys.executable, "-m", "svr.demo", f"out={out}", f"experiment={EXPERIMENTS[preset]}",
@@ -231,6 +237,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         parser.error("--rows must include shipped: its run scores the oracle and the baselines")
     work = (args.work or ROOT / "outputs" / f"ladder_{args.preset}").resolve()
     start = time.time()
+    reused = [row for row in args.rows if not args.rescore and scored(work / row)]
     objects = {row: read_per_object(train_row(row, args.preset, work, args.overrides, args.quiet,
                                               args.rescore) / "per_object.csv")
                for row in args.rows}
@@ -247,8 +254,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             f"Command: `{command.strip()}` ({seconds / 60:.1f} min this time; training: {trained}).\n\n"
             f"{machine_info()}\n\nTest split, {summary['objects']} objects, all 24 views each, scored by the "
             f"benchmark protocol; the interval is a 95% bootstrap over test objects (resampled within each "
-            f"category). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}` "
-            f"(+ `loss=voxels` for the 3D-supervised one){' with ' + ' '.join(args.overrides) if args.overrides else ''}."
+            f"category). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}`"
+            f"{' (+ `loss=voxels` for the 3D-supervised one)' if 'voxels' in args.rows else ''}"
+            f"{' with ' + ' '.join(args.overrides) if args.overrides else ''}."
+            f"{'' if 'voxels' in args.rows else ' The 3D-supervised row was not run (`--rows shipped`).'}"
+            f"{' Scores reused from an earlier scoring of their run: ' + ', '.join(reused) + '.' if reused else ''}"
             f"\n\n{markdown_table(summary)}\n## Reading\n\n{reading(summary)}\n![ladder]({stem.name}.png)\n")
     print(text)
     atomic_write_text(stem.with_suffix(".md"), text)

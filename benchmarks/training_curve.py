@@ -1,11 +1,12 @@
 """Validation IoU against training time of a run (all its stages, resumed parts included), run as
-``python -m benchmarks.training_curve RUN [--baseline NAME=IOU ...] [--out PATH]``. It reads
-``<run>/<stage>/csv/metrics*.csv`` (the CSV logger's files; a resumed stage's earlier parts are kept
-as ``metrics.<k>.csv``) for every stage of the run's ``config.yaml`` schedule, and writes
+``python -m benchmarks.training_curve RUN [--baseline NAME=IOU ...] [--final NAME=IOU ...] [--out PATH]``.
+It reads ``<run>/<stage>/csv/metrics*.csv`` (the CSV logger's files; a resumed stage's earlier parts
+are kept as ``metrics.<k>.csv``) for every stage of the run's ``config.yaml`` schedule, and writes
 ``<out>.md`` (one row per validation: stage, step, cumulative hours, validation IoU, the coarse
 stage's IoU where the refiner ran) and ``<out>.png`` (IoU against cumulative hours, one line per
-stage, a dashed line per ``--baseline NAME=IOU``). The time is the ``val/train_seconds`` the
-training logs (wall time of the stage so far, validation included, over resumes); stages add up.
+stage, a dashed line per ``--baseline NAME=IOU``, a star at the curve's end per ``--final
+NAME=IOU``). The time is the ``val/train_seconds`` the training logs (wall time of the stage so far,
+validation included, over resumes); stages add up.
 """
 from __future__ import annotations
 
@@ -56,7 +57,7 @@ def read_curve(run_dir: Path) -> list[dict]:
     return rows
 
 
-def markdown(rows: list[dict], baselines: dict[str, float]) -> str:
+def markdown(rows: list[dict], baselines: dict[str, float], finals: Optional[dict[str, float]] = None) -> str:
     lines = ["| stage | step | hours | val IoU | coarse IoU |", "|---|---:|---:|---:|---:|"]
     for r in rows:
         hours = f"{r['hours']:.2f}" if r["hours"] is not None else "n/a"
@@ -67,10 +68,14 @@ def markdown(rows: list[dict], baselines: dict[str, float]) -> str:
         lines.append("")
         for name, value in baselines.items():
             lines.append(f"- {name}: {value:.4f}; best validation IoU minus {name}: {best - value:+.4f}")
+    for name, value in (finals or {}).items():
+        lines.append(f"- {name} (the finished run): {value:.4f}"
+                     + "".join(f"; minus {b}: {value - v:+.4f}" for b, v in baselines.items()))
     return "\n".join(lines)
 
 
-def plot(rows: list[dict], baselines: dict[str, float], path: Path, title: str) -> None:
+def plot(rows: list[dict], baselines: dict[str, float], path: Path, title: str,
+         finals: Optional[dict[str, float]] = None) -> None:
     import matplotlib  # heavy: only the plot needs it
 
     matplotlib.use("Agg")
@@ -83,6 +88,10 @@ def plot(rows: list[dict], baselines: dict[str, float], path: Path, title: str) 
             ax.plot(*zip(*pts), marker="o", ms=3, label=stage)
     for i, (name, value) in enumerate(baselines.items()):
         ax.axhline(value, ls="--", lw=1, color=f"C{i + 3}", label=name)
+    end = max((r["hours"] for r in rows if r["hours"] is not None), default=None)
+    for i, (name, value) in enumerate((finals or {}).items()):
+        if end is not None:
+            ax.plot([end], [value], marker="*", ms=11, ls="none", color=f"C{i + 7}", label=name)
     ax.set_xlabel("training time (hours, validation included)")
     ax.set_ylabel("validation IoU (benchmark mean)")
     ax.set_title(title, fontsize=9)
@@ -116,6 +125,8 @@ def main(argv: Optional[list[str]] = None) -> None:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("run_dir", type=Path, help="a training run folder (holds config.yaml and <stage>/csv/)")
     parser.add_argument("--baseline", type=_baseline, action="append", default=[], metavar="NAME=IOU")
+    parser.add_argument("--final", type=_baseline, action="append", default=[], metavar="NAME=IOU",
+                        help="a score of the finished run (e.g. its test IoU), a star at the curve's end")
     parser.add_argument("--out", type=Path, default=None, help="output path without suffix (default RUN/curve)")
     parser.add_argument("--title", default=None)
     args = parser.parse_args(argv)
@@ -128,9 +139,9 @@ def main(argv: Optional[list[str]] = None) -> None:
     out = args.out or args.run_dir / "curve"
     out.parent.mkdir(parents=True, exist_ok=True)
 
-    text = markdown(rows, baselines)
+    text = markdown(rows, baselines, dict(args.final))
     atomic_write_text(out.with_suffix(".md"), text + "\n")
-    plot(rows, baselines, out.with_suffix(".png"), args.title or f"{args.run_dir}")
+    plot(rows, baselines, out.with_suffix(".png"), args.title or f"{args.run_dir}", dict(args.final))
     print(text)
     print(f"wrote {out.with_suffix('.md')} and {out.with_suffix('.png')}")
 

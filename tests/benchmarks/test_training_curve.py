@@ -30,9 +30,10 @@ def test_training_curve_joins_stages_and_resumed_parts(tmp_path):
     rows = read_curve(run)
     assert [(r["stage"], r["step"]) for r in rows] == [("coarse", 10), ("coarse", 20), ("refine", 10)]
     assert [r["hours"] for r in rows] == pytest.approx([0.1, 0.2, 0.3])  # stages add up
-    curve_main([str(run), "--baseline", "retrieval=0.5", "--out", str(tmp_path / "c")])
+    curve_main([str(run), "--baseline", "retrieval=0.5", "--final", "test IoU=0.56", "--out", str(tmp_path / "c")])
     text = (tmp_path / "c.md").read_text()
     assert "| refine | 10 | 0.30 | 0.4500 | 0.4000 |" in text and "minus retrieval: -0.0500" in text
+    assert "- test IoU (the finished run): 0.5600; minus retrieval: +0.0600" in text
     assert (tmp_path / "c.png").stat().st_size > 0
     with pytest.raises(SystemExit):
         curve_main([str(run), "--baseline", "retrieval"])
