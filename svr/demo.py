@@ -1,7 +1,8 @@
 """The CPU demo, ``python -m svr.demo`` (what ``make demo`` runs; configs/demo.yaml): trains
 ``experiment=demo`` from scratch on the procedural data into ``<out>/train`` (a stopped run resumes
 with its saved config when the command runs again, a finished one is only evaluated again), then
-scores it by the benchmark protocol with the coarse stage and every baseline as extra rows, and
+calibrates its checkpoints on the validation split (``svr.evaluation.calibration``; once, kept in
+the checkpoints) and scores it by the benchmark protocol with the coarse stage and every baseline as extra rows, and
 writes into ``out``: the evaluation's files (``table.md``, ``table.csv``, ``iou.json``,
 ``per_object.csv``, ``per_image.csv``), ``timings.json`` (training seconds over resumes, this
 command's wall and evaluation seconds, per stage the steps planned and reached),
@@ -41,6 +42,8 @@ class DemoSettings(TrainSettings):
         fresh: delete ``<out>/train`` and train from scratch.
         protocol_workers: processes for the evaluation's mesh voxelisation (0: this one).
         quiet: no progress bars.
+        calibrate: calibrate the checkpoints on the validation split and score them calibrated
+            (false: score the network's raw output).
     """
 
     out: str
@@ -48,6 +51,7 @@ class DemoSettings(TrainSettings):
     fresh: bool
     protocol_workers: int
     quiet: bool
+    calibrate: bool
 
     def __post_init__(self) -> None:
         if not self.out:
@@ -117,7 +121,7 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
         train_wall = time.time() - start
     t_eval = time.time()
     result = score_run(train_settings, folder, out_dir, progress=not settings.quiet,
-                          protocol_workers=settings.protocol_workers)
+                       protocol_workers=settings.protocol_workers, calibrate=settings.calibrate)
     steps = folder.steps(schedule, {s: train_settings.stage.of(s).max_steps for s in schedule})
     train_seconds = folder.train_seconds(schedule)
     timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,
@@ -125,8 +129,9 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
                "resumed": resume is not None, "steps": steps}
     result["files"].append(str(write_json(out_dir / "timings.json", timings)))
     iou_json = out_dir / "iou.json"
-    write_json(iou_json, {**json.loads(iou_json.read_text()), "steps": steps})
+    write_json(iou_json, {**json.loads(iou_json.read_text()), "steps": steps, "calibration": result["calibration"]})
     result["iou"]["steps"] = steps
+    result["iou"]["calibration"] = result["calibration"]
     _print_summary(result, timings, out_dir)
     return {**result, **timings}
 

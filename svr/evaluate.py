@@ -10,6 +10,7 @@ to rank 0 alone). A mistake in the settings or files is one line ``sdfdiff-evalu
 with exit status 2 (``sdfcommon.tooling.commands``)."""
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Optional
 
 import torch
@@ -61,9 +62,12 @@ def _evaluate_checkpoint(settings: EvalSettings, ranks: RankInfo) -> EvaluationR
     folder = ensure_output_dir(out, "output_dir") if ranks.is_zero else None
     datamodule = instantiate(settings.data)
     model = load_model(settings.ckpt_path, _device_of_rank(settings.device, ranks))
+    if not settings.calibrated:
+        model = dataclasses.replace(model, calibration=None)
     say = print if ranks.is_zero else (lambda *args, **kwargs: None)
     say(f"evaluating {model.checkpoint} ({model.stage} stage, {model.output_name} output) on {model.device}"
-        + (f" and {ranks.world_size - 1} more processes" if ranks.world_size > 1 else ""))
+        + (f" and {ranks.world_size - 1} more processes" if ranks.world_size > 1 else "")
+        + (f"; calibration: {model.calibration.describe()}" if model.calibration is not None else ""))
     say(f"data: {describe_data(datamodule)}; split: {settings.split}")
     if ranks.is_zero:
         prepare_split(datamodule, settings.split, progress=settings.progress)

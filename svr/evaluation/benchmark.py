@@ -142,6 +142,8 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
         views_per_object=len(items.views),
         full_protocol=len(items.views) == NUM_VIEWS and max_objects_per_category is None,
         seconds=time.perf_counter() - start,
+        calibration=(model.calibration.describe() if model.calibration is not None
+                     and not model.calibration.is_identity else None),
     )
     if len(result.iou) != len(items):
         raise RuntimeError(f"gathered {len(result.iou)} per-image results for {len(items)} images")

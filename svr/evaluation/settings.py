@@ -25,6 +25,7 @@ class EvalSettings:
         split: "train", "val" or "test" (the benchmark's).
         output_dir: where the report goes; None: hydra's run folder (``<paths.output_dir>/eval/<time>``).
         compare_coarse: also score the coarse SDF.
+        calibrated: apply the checkpoint's calibration when it holds one (``svr.inference.calibration``).
         baselines: names from ``svr.evaluation.baselines.BASELINES`` scored on the same images.
         batch_size: images per forward pass (configs/eval.yaml: the data's ``eval_batch_size``).
         num_workers: DataLoader workers. protocol_workers: voxelisation processes (0: this one).
@@ -40,6 +41,7 @@ class EvalSettings:
     split: str
     output_dir: Optional[str]
     compare_coarse: bool
+    calibrated: bool
     baselines: list[str]
     batch_size: int
     num_workers: int

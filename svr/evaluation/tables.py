@@ -74,6 +74,8 @@ class EvaluationResult:
         views_per_object: views evaluated per object (24 for the protocol).
         full_protocol: every view of every object was evaluated (no thinning).
         seconds: wall time.
+        calibration: the model's calibration (``svr.inference.calibration.Calibration.describe``),
+            None when its predictions were scored as the network made them.
     """
 
     split: str
@@ -93,6 +95,7 @@ class EvaluationResult:
     full_protocol: bool = True
     seconds: float = 0.0
     baselines: Mapping[str, np.ndarray] = field(default_factory=dict)
+    calibration: Optional[str] = None
 
     @property
     def table(self) -> IoUTable:
@@ -180,6 +183,7 @@ class EvaluationResult:
             if len(self.iou) else 0,
             "views_per_object": self.views_per_object,
             "full_protocol": self.full_protocol,
+            "calibration": self.calibration,
             "protocol": "marching cubes of each view's SDF -> NMR 32^3 voxelisation (dilated surface, "
                         "vertices, 6-connected fill) -> IoU per image; category = mean over its images; "
                         "mean = unweighted mean over categories",
@@ -262,6 +266,9 @@ def table_notes(result: EvaluationResult) -> list[str]:
     if not result.full_protocol:
         notes.append(f"Thinned run ({result.views_per_object} views per object or fewer objects): "
                      "not the benchmark protocol's number.")
+    if result.calibration is not None:
+        notes.append(f"Our predictions are calibrated ({result.calibration}; chosen on the validation split, "
+                     "docs/svr_evaluation.md).")
     if result.baselines:
         notes.append("Baselines, scored on the same images by the same protocol: " + "; ".join(
             f"{LABELS[n]}: {DESCRIPTIONS[n]}" for n in result.baselines) + ".")

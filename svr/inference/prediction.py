@@ -1,7 +1,9 @@
 """The trained network, used: ``load_model`` (the one place a checkpoint path becomes a model)
 reads a checkpoint (``svr.inference.checkpoints``) onto a device as a ``LoadedModel``; ``predict_sdf``
-runs a LoadedModel on images in batches without gradients and closes the shapes at the
-normalisation cube (``svr.evaluation.voxels.clip_to_box``); ``predict`` gives ``renderer.SDFGrid``s.
+runs a LoadedModel on images in batches without gradients, applies the checkpoint's calibration
+(``svr.inference.calibration``: silhouette carving and a level, chosen on the validation split) and
+closes the shapes at the normalisation cube (``svr.evaluation.voxels.clip_to_box``); ``predict``
+gives ``renderer.SDFGrid``s.
 Evaluation, inference and the demo all predict through here, so they score and show the same
 shapes; a network in memory is wrapped as ``LoadedModel(net)``."""
 from __future__ import annotations
@@ -18,6 +20,7 @@ from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.serialization import scrub_unsafe_advice
 
 from svr.evaluation.voxels import clip_to_box
+from svr.inference.calibration import Calibration
 from svr.inference.checkpoints import load_network
 from svr.models.network import SVRNet, SVRPrediction
 
@@ -56,12 +59,15 @@ class LoadedModel:
             checkpoint's refiner is untrained, so its output is the coarse SDF.
         checkpoint: the file it came from (None for a network given directly).
         categories: the training data's (category id, name) pairs, when the checkpoint has them.
+        calibration: what the predictions go through after the network (None: nothing), the
+            checkpoint's when it holds one (``svr.evaluation.calibration.store_calibration``).
     """
 
     net: SVRNet
     stage: str = "joint"
     checkpoint: Optional[Path] = None
     categories: Optional[tuple[tuple[str, str], ...]] = None
+    calibration: Optional[Calibration] = None
 
     @property
     def device(self) -> torch.device:
@@ -113,8 +119,11 @@ def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "au
     except ValueError as err:
         raise ValueError(f"ckpt_path: {scrub_unsafe_advice(str(err))}") from None
     cats = meta.get("categories")
+    calibration = meta.get("calibration")
     return LoadedModel(net=net, stage=str(meta["stage"]), checkpoint=path,
-                       categories=tuple((str(c), str(n)) for c, n in cats) if cats else None)
+                       categories=tuple((str(c), str(n)) for c, n in cats) if cats else None,
+                       calibration=(Calibration.from_dict(calibration["settings"], f"{path}: calibration")
+                                    if calibration else None))
 
 
 def check_model(model: LoadedModel, name: str = "model") -> LoadedModel:
@@ -149,7 +158,8 @@ def check_images(images: torch.Tensor, image_size: int = 64, name: str = "images
 
 @torch.no_grad()
 def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
-                refine: Optional[bool] = None, clip: bool = True, views=None) -> SVRPrediction:
+                refine: Optional[bool] = None, clip: bool = True, views=None,
+                calibrated: bool = True) -> SVRPrediction:
     """The network's coarse and (unless the model is a coarse-stage one) refined SDFs.
 
     Args:
@@ -162,7 +172,8 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
             output of this module and ``svr.evaluate`` goes through it.
         views: the images' NMR view indices (B,) (0..23, fractional allowed), or one for all: the
             camera each image was taken from. Needed by a network that reads pixel-aligned image
-            features (``SVRNet.needs_views``), ignored by others.
+            features (``SVRNet.needs_views``), and by a calibration's carving (skipped without them).
+        calibrated: apply ``model.calibration`` (to the coarse and the refined SDF) when it has one.
     Returns:
         SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32
         on the model's device, over the box ``[-half_side, half_side]^3`` (world units).
@@ -173,13 +184,15 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
     use_refiner = m.uses_refiner if refine is None else bool(refine)
     v = check_input_views(views, len(x), m.net.needs_views)
     m.net.eval()
+    post = m.calibration if calibrated and m.calibration is not None and not m.calibration.is_identity else None
     coarse, refined = [], []
     for i, chunk in enumerate(x.split(batch_size)):
         vc = v[i * batch_size:(i + 1) * batch_size].to(m.device) if v is not None else None
-        out = m.net(chunk.to(m.device, non_blocking=True), refine=use_refiner, views=vc)
-        coarse.append(out.coarse)
+        chunk = chunk.to(m.device, non_blocking=True)
+        out = m.net(chunk, refine=use_refiner, views=vc)
+        coarse.append(out.coarse if post is None else post.apply(out.coarse, chunk, vc, m.half_side))
         if out.refined is not None:
-            refined.append(out.refined)
+            refined.append(out.refined if post is None else post.apply(out.refined, chunk, vc, m.half_side))
     coarse_t = torch.cat(coarse)
     refined_t = torch.cat(refined) if use_refiner else None
     if clip:

@@ -14,11 +14,12 @@ from svr.view_renders import render_views
 
 
 @torch.no_grad()
-def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], scene, out_dir: Path,
-             views: Sequence[int] = (0,)) -> list[Path]:
+def showcase(model: LoadedModel, coarse_model: LoadedModel, dataset, categories: Sequence[tuple[str, str]], scene,
+             out_dir: Path, views: Sequence[int] = (0,)) -> list[Path]:
     """For the first test object of each category: a PNG row (input, the coarse stage's and the
     full model's predictions rendered from the input view, the full model's from 90 and 180 degrees
-    further round) and the full model's marching-cubes mesh (.ply).
+    further round) and the full model's marching-cubes mesh (.ply). The models' predictions are the
+    evaluation's (``predict_sdf``, with their calibrations); ``coarse_model``'s coarse SDF is shown.
 
     Returns:
         the files written (the PNG first).
@@ -28,8 +29,6 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # heavy, as above
 
-    net.eval()
-    coarse_net.eval()
     mesh_dir = out_dir / "meshes"
     mesh_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
@@ -40,9 +39,9 @@ def showcase(net, coarse_net, dataset, categories: Sequence[tuple[str, str]], sc
         obj = int(dataset.offsets[c])
         for v in views:
             image = dataset.views(obj, [v])  # (1, 4, 64, 64)
-            final = predict_sdf(LoadedModel(net), image, views=v).final  # what the evaluation scored
-            coarse = predict_sdf(LoadedModel(coarse_net), image, refine=False, views=v).coarse
-            hs = net.half_side
+            final = predict_sdf(model, image, views=v).final  # what the evaluation scored
+            coarse = predict_sdf(coarse_model, image, refine=False, views=v).coarse
+            hs = model.half_side
             shots = []
             for sdf, view in ((coarse, v), (final, v), (final, v + 6), (final, v + 12)):
                 _, colours = render_views(sdf, hs, torch.tensor([[view % NUM_VIEWS]]), scene, 64)

@@ -52,12 +52,20 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     assert timings["train_seconds"] > 0
     assert timings["steps"] == {s: {"planned": 2, "reached": 2} for s in ("coarse", "refine", "joint")}
     assert "steps (planned / reached): coarse 2 / 2, refine 2 / 2, joint 2 / 2" in printed
+    # Each checkpoint scored was calibrated on the validation split (the tiny model has no mirror
+    # look: no carving, the input view, each at 7 levels), and the choice is kept in the checkpoint.
+    for stage in ("joint", "coarse"):
+        record = summary["calibration"][stage]
+        assert record["split"] == "val" and len(record["candidates"]) == 14
+        assert record["calibrated_iou"] == max(c["iou"] for c in record["candidates"]) >= record["uncalibrated_iou"]
+    assert printed.count("on the validation split in") == 2
 
     # A finished run is evaluated again, not retrained.
     final = out / "train" / "joint" / "checkpoints" / "final.ckpt"
     stamp = final.stat().st_mtime_ns
     demo(args)
-    assert "holds a finished run" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "holds a finished run" in printed and "on the validation split in" not in printed  # kept, not redone
     assert final.stat().st_mtime_ns == stamp
 
     # A run stopped after the refine stage resumes there and trains only the joint stage.

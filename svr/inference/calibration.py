@@ -1,0 +1,144 @@
+"""What a checkpoint's predictions go through after the network, chosen once on the validation split
+(``svr.evaluation.calibration``) and kept in the checkpoint: carving by the input silhouette and a
+shift of the surface level. A network trained on silhouettes predicts shapes near the visual hull
+of its supervised views, so it over-fills (on the demo's test split the median predicted volume was
+1.75x the truth) and puts some material where the input view shows background. Carving removes
+every sample whose projection into the input view falls outside the silhouette (the dataset's known
+camera, as the pixel-aligned head reads it), and, with a mirror axis, every sample whose mirror
+image does (the mirror image of the object seen from the same camera has the same silhouette);
+the level then moves the surface inwards by a fixed distance. Both only use the input image and its
+camera, so they apply wherever the network does."""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Mapping, Optional
+
+import numpy as np
+import torch
+from scipy import ndimage
+from torch.nn import functional as F
+
+import renderer
+
+CARVES = ("none", "view", "view+mirror")
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Post-processing of predicted SDF grids.
+
+    Attributes:
+        carve: "none"; "view": intersect with the input silhouette's cone; "view+mirror": also with
+            the cone's mirror image across the plane ``mirror_axis`` = 0 through the origin.
+        mirror_axis: the world axis (0 = x, 1 = y, 2 = z) of "view+mirror".
+        level: world units added to the SDF (positive: the surface moves inwards).
+        threshold: alpha at or above which an input pixel is silhouette.
+    """
+
+    carve: str = "none"
+    mirror_axis: Optional[int] = None
+    level: float = 0.0
+    threshold: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.carve not in CARVES:
+            raise ValueError(f"carve must be one of {', '.join(CARVES)}, got {self.carve!r}")
+        if self.carve == "view+mirror" and self.mirror_axis not in (0, 1, 2):
+            raise ValueError(f"carve='view+mirror' needs mirror_axis 0, 1 or 2, got {self.mirror_axis!r}")
+        if not math.isfinite(float(self.level)):
+            raise ValueError(f"level must be a finite number, got {self.level!r}")
+        if not 0.0 < float(self.threshold) < 1.0:
+            raise ValueError(f"threshold must lie in (0, 1), got {self.threshold!r}")
+
+    @property
+    def is_identity(self) -> bool:
+        return self.carve == "none" and float(self.level) == 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], name: str = "calibration") -> "Calibration":
+        """The inverse of ``to_dict``; raises ValueError naming ``name`` on unknown keys or values."""
+        unknown = set(data) - {"carve", "mirror_axis", "level", "threshold"}
+        if unknown:
+            raise ValueError(f"{name}: unknown keys {sorted(unknown)}")
+        try:
+            return cls(**dict(data))
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"{name}: {err}") from None
+
+    def describe(self) -> str:
+        mirror = f" (mirror axis {'xyz'[self.mirror_axis]})" if self.carve == "view+mirror" else ""
+        return f"carve {self.carve}{mirror}, level {self.level:+.4f}"
+
+    def apply(self, sdf: torch.Tensor, images: torch.Tensor, views: Optional[torch.Tensor],
+              half_side: float) -> torch.Tensor:
+        """(B, N, N, N) SDF grids over ``[-half_side, half_side]^3`` predicted from ``images``
+        (B, 4, S, S) RGBA taken from NMR views ``views`` (B,) -> the calibrated grids. Without views
+        nothing can be carved: only the level applies."""
+        out = sdf
+        if self.carve != "none" and views is not None:
+            axis = self.mirror_axis if self.carve == "view+mirror" else None
+            out = torch.maximum(out, silhouette_cone_sdf(images[:, 3], views, sdf.shape[-1], half_side,
+                                                         axis, self.threshold).to(out))
+        return out + float(self.level) if float(self.level) != 0.0 else out
+
+
+def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
+    """(B, H, W) alpha -> (B, H, W) signed distance (pixels) from each pixel centre to the
+    silhouette's edge, taken half a pixel outside the silhouette's outer pixel centres: positive
+    outside (alpha < threshold), negative inside."""
+    masks = (alpha.detach().cpu().numpy() >= threshold)
+    out = np.empty(masks.shape, np.float32)
+    for i, inside in enumerate(masks):
+        if not inside.any():
+            out[i] = 1e6  # no silhouette: everything is outside
+            continue
+        if inside.all():
+            out[i] = -1e6
+            continue
+        outside_d = ndimage.distance_transform_edt(~inside)  # to the nearest silhouette pixel
+        inside_d = ndimage.distance_transform_edt(inside)   # to the nearest background pixel
+        out[i] = np.where(inside, 0.5 - inside_d, outside_d - 0.5)
+    return torch.from_numpy(out).to(alpha.device)
+
+
+def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: int, half_side: float,
+                        mirror_axis: Optional[int] = None, threshold: float = 0.5) -> torch.Tensor:
+    """An SDF-like field (world units, positive outside) of the cone of rays through the input
+    view's silhouette, sampled on the N^3 grid over ``[-half_side, half_side]^3``
+    (renderer.SDFGrid layout): the pixel distance to the silhouette at each sample's projection,
+    scaled by the pixel's size at the sample's depth. With ``mirror_axis`` the field of the sample's
+    mirror image is taken too (the larger of the two: the intersection of the two cones).
+
+    Args:
+        alpha: (B, S, S) the input images' alpha.
+        views: (B,) their NMR view indices.
+    Returns:
+        (B, N, N, N) float32 on ``alpha``'s device.
+    """
+    b, size = alpha.shape[0], alpha.shape[-1]
+    dist = signed_pixel_distance(alpha, threshold)[:, None]  # (B, 1, S, S)
+    axis = torch.linspace(-half_side, half_side, resolution, dtype=torch.float32, device=alpha.device)
+    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    cams = renderer.Cameras.nmr(torch.as_tensor(views).detach().cpu(), image_size=size).to(alpha.device,
+                                                                                          torch.float32)
+    pixel_per_depth = (2.0 * torch.tan(torch.deg2rad(cams.fov_deg) / 2.0) / size)[:, None]  # (B, 1)
+
+    def field(pts: torch.Tensor) -> torch.Tensor:
+        pix, depth = cams.project(pts)
+        grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
+        d = F.grid_sample(dist, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, 0, 0]
+        return d * depth * pixel_per_depth
+
+    out = field(points)
+    if mirror_axis is not None:
+        flip = torch.ones(3, device=alpha.device)
+        flip[mirror_axis] = -1.0
+        out = torch.maximum(out, field(points * flip))
+    return out.reshape(b, resolution, resolution, resolution)
+
+
+__all__ = ["CARVES", "Calibration", "signed_pixel_distance", "silhouette_cone_sdf"]
