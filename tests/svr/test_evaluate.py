@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+import shutil
 import signal
 import subprocess
 import sys
@@ -339,3 +340,31 @@ def test_protocol_workers_die_with_a_killed_parent(sig):
     finally:
         proc.kill()
         proc.wait()
+
+
+def test_stored_calibration_is_applied_unless_turned_off(tiny_run, tmp_path, capsys, monkeypatch):
+    """A checkpoint holding a calibration is scored with it (the line and the table say so), and
+    ``calibrated=false`` scores the network's raw output."""
+    from types import SimpleNamespace
+
+    from svr.evaluation.calibration import store_calibration
+    from svr.inference.calibration import Calibration
+
+    ckpt = tmp_path / "calibrated.ckpt"
+    shutil.copy(tiny_run.checkpoint, ckpt)
+    store_calibration(ckpt, SimpleNamespace(record=lambda: {"settings": Calibration(level=0.05).to_dict()}))
+    means = {}
+    for flag in ("true", "false"):
+        out = tmp_path / f"eval_{flag}"
+        run_main(main, [f"ckpt_path={ckpt}", f"output_dir={out}", f"calibrated={flag}", "views=[0,6]", "baselines=[]",
+                        *tiny_run.data_overrides()], tmp_path / f"hydra_{flag}", monkeypatch)
+        printed = capsys.readouterr().out
+        summary = json.loads((out / "iou.json").read_text())
+        means[flag] = summary["mean"]
+        if flag == "true":
+            assert "calibration: carve none, level +0.0500" in printed
+            assert summary["calibration"] == "carve none, level +0.0500"
+            assert "Our predictions are calibrated (carve none, level +0.0500" in (out / "table.md").read_text()
+        else:
+            assert "calibration:" not in printed and summary["calibration"] is None
+    assert means["true"] != means["false"]
