@@ -102,6 +102,20 @@ def scored(folder: Path) -> bool:
     return (folder / "timings.json").is_file() and (folder / "per_object.csv").is_file()
 
 
+def calibration_of(folder: Path) -> str:
+    """How a scored row's last-stage checkpoint was calibrated, from its ``iou.json`` ("none" when it
+    was scored raw or before calibration existed)."""
+    path = folder / "iou.json"
+    records = json.loads(path.read_text()).get("calibration") if path.is_file() else None
+    if not records:
+        return "none"
+    settings = list(records.values())[0]["settings"]
+    text = f"carve {settings['carve']}"
+    if settings["carve"] == "view+mirror":
+        text += f" (axis {'xyz'[settings['mirror_axis']]})"
+    return f"{text}, level {settings['level']:+.4f}"
+
+
 def train_row(row: str, preset: str, work: Path, extra: Sequence[str], quiet: bool, rescore: bool = False) -> Path:
     """Trains (or resumes, or only scores) one trained row with ``python -m svr.demo``; returns its folder.
     A row whose folder already holds the scores of a finished run (``scored``) is reused as it is
@@ -244,6 +258,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     data = [o for o in args.overrides if o.startswith("data.")]
     lookup, categories = lookup_per_object(args.preset, data)
     timings = {row: json.loads((work / row / "timings.json").read_text()) for row in args.rows}
+    calibrations = {row: calibration_of(work / row) for row in args.rows}
     summary = ladder(objects, lookup, categories)
     seconds = time.time() - start
     command = "python -m benchmarks.accuracy_ladder " + " ".join(argv if argv is not None else sys.argv[1:])
@@ -259,6 +274,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             f"{' with ' + ' '.join(args.overrides) if args.overrides else ''}."
             f"{'' if 'voxels' in args.rows else ' The 3D-supervised row was not run (`--rows shipped`).'}"
             f"{' Scores reused from an earlier scoring of their run: ' + ', '.join(reused) + '.' if reused else ''}"
+            f" Calibration of each trained row's scored checkpoint (chosen on the validation split, "
+            f"docs/svr_evaluation.md#calibration): "
+            f"{'; '.join(f'{row}: {text}' for row, text in calibrations.items())}."
             f"\n\n{markdown_table(summary)}\n## Reading\n\n{reading(summary)}\n![ladder]({stem.name}.png)\n")
     print(text)
     atomic_write_text(stem.with_suffix(".md"), text)

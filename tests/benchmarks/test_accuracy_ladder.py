@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.accuracy_ladder import ROWS, bootstrap_means, ladder, markdown_table, read_per_object, reading
+from benchmarks.accuracy_ladder import (ROWS, bootstrap_means, calibration_of, ladder, markdown_table, read_per_object,
+                                       reading)
 
 
 def test_constant_scores_give_zero_width_intervals():
@@ -87,3 +88,15 @@ def test_a_scored_row_is_reused_unless_rescore(tmp_path, monkeypatch):
     assert al.train_row("shipped", "demo", tmp_path, [], quiet=True) == row and len(calls) == 1  # reused
     al.train_row("shipped", "demo", tmp_path, ["seed=1"], quiet=True, rescore=True)
     assert len(calls) == 2 and "seed=1" in calls[1] and f"out={row}" in calls[1]
+
+
+def test_calibration_of_a_scored_row(tmp_path):
+    import json
+
+    assert calibration_of(tmp_path) == "none"  # not scored yet
+    (tmp_path / "iou.json").write_text(json.dumps({"mean": 0.5}))
+    assert calibration_of(tmp_path) == "none"  # scored before calibration existed
+    settings = {"carve": "view+mirror", "mirror_axis": 0, "level": 0.0095, "threshold": 0.5}
+    (tmp_path / "iou.json").write_text(json.dumps({"calibration": {"joint": {"settings": settings},
+                                                                   "coarse": {"settings": {**settings, "level": 0.1}}}}))
+    assert calibration_of(tmp_path) == "carve view+mirror (axis x), level +0.0095"
