@@ -106,7 +106,7 @@ def calibration_of(folder: Path) -> str:
     """How a scored row's last-stage checkpoint was calibrated, from its ``iou.json`` ("none" when it
     was scored raw or before calibration existed)."""
     path = folder / "iou.json"
-    records = json.loads(path.read_text()).get("calibration") if path.is_file() else None
+    records = json.loads(path.read_text()).get("calibration_search") if path.is_file() else None
     if not records:
         return "none"
     settings = list(records.values())[0]["settings"]

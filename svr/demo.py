@@ -129,9 +129,11 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
                "resumed": resume is not None, "steps": steps}
     result["files"].append(str(write_json(out_dir / "timings.json", timings)))
     iou_json = out_dir / "iou.json"
-    write_json(iou_json, {**json.loads(iou_json.read_text()), "steps": steps, "calibration": result["calibration"]})
+    # "calibration" (the evaluation's) describes what was applied; the searches' records go beside it
+    write_json(iou_json, {**json.loads(iou_json.read_text()), "steps": steps,
+                          "calibration_search": result["calibration"]})
     result["iou"]["steps"] = steps
-    result["iou"]["calibration"] = result["calibration"]
+    result["iou"]["calibration_search"] = result["calibration"]
     _print_summary(result, timings, out_dir)
     return {**result, **timings}
 

@@ -97,6 +97,6 @@ def test_calibration_of_a_scored_row(tmp_path):
     (tmp_path / "iou.json").write_text(json.dumps({"mean": 0.5}))
     assert calibration_of(tmp_path) == "none"  # scored before calibration existed
     settings = {"carve": "view+mirror", "mirror_axis": 0, "level": 0.0095, "threshold": 0.5}
-    (tmp_path / "iou.json").write_text(json.dumps({"calibration": {"joint": {"settings": settings},
+    (tmp_path / "iou.json").write_text(json.dumps({"calibration_search": {"joint": {"settings": settings},
                                                                    "coarse": {"settings": {**settings, "level": 0.1}}}}))
     assert calibration_of(tmp_path) == "carve view+mirror (axis x), level +0.0095"

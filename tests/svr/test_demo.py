@@ -55,10 +55,11 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     # Each checkpoint scored was calibrated on the validation split (the tiny model has no mirror
     # look: no carving, the input view, each at 7 levels), and the choice is kept in the checkpoint.
     for stage in ("joint", "coarse"):
-        record = summary["calibration"][stage]
+        record = summary["calibration_search"][stage]
         assert record["split"] == "val" and len(record["candidates"]) == 14
         assert record["calibrated_iou"] == max(c["iou"] for c in record["candidates"]) >= record["uncalibrated_iou"]
     assert printed.count("on the validation split in") == 2
+    assert summary["calibration"].startswith("carve ")  # what the scored predictions went through
 
     # A finished run is evaluated again, not retrained.
     final = out / "train" / "joint" / "checkpoints" / "final.ckpt"
