@@ -2,10 +2,10 @@
 ``experiment=demo`` from scratch on the procedural data into ``<out>/train`` (a stopped run resumes
 with its saved config when the command runs again, a finished one is only evaluated again), then
 calibrates its checkpoints on the validation split (``svr.evaluation.calibration``; once, kept in
-the checkpoints) and scores it by the benchmark protocol with the coarse stage and every baseline as extra rows, and
-writes into ``out``: the evaluation's files (``table.md``, ``table.csv``, ``iou.json``,
-``per_object.csv``, ``per_image.csv``), ``timings.json`` (training seconds over resumes, this
-command's wall and evaluation seconds, per stage the steps planned and reached),
+the checkpoints) and scores it by the benchmark protocol with the coarse stage and every baseline
+as extra rows, and writes into ``out``: the evaluation's files (``table.md``, ``table.csv``,
+``iou.json``, ``per_object.csv``, ``per_image.csv``), ``timings.json`` (training seconds over
+resumes, this command's wall and evaluation seconds, per stage the steps planned and reached),
 ``predictions.png`` and ``meshes/*.ply``."""
 from __future__ import annotations
 

@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
-import torch
 from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
@@ -22,7 +21,7 @@ from svr.data.datamodule import EvalViews
 from svr.data.types import collate_batch
 from svr.evaluation.metrics import voxel_iou, voxels_protocol
 from svr.evaluation.voxels import clip_to_box
-from svr.inference.calibration import Calibration, silhouette_cone_sdf
+from svr.inference.calibration import Calibration
 from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint
 from svr.inference.prediction import LoadedModel, check_model, predict_sdf
 
@@ -103,12 +102,10 @@ def search_calibration(model: LoadedModel, objects, split: str = "val", views: S
             images, vw = batch.images[:, 0], batch.view_ids[:, 0]
             raw = predict_sdf(model, images, batch_size=len(images), views=vw, clip=False,
                               calibrated=False).final.detach().float().cpu()
-            carved = {"none": raw}
-            for c, a in carves[1:]:
-                carved[c] = torch.maximum(raw, silhouette_cone_sdf(images[:, 3], vw, n, hs, a))
+            cones = {c: Calibration(carve=c, mirror_axis=a).cone(images, vw, n, hs) for c, a in carves}
             gt = batch.voxels.cpu()
             for k, cal in enumerate(candidates):
-                values = clip_to_box(carved[cal.carve] + cal.level, -hs, hs)  # as predict_sdf closes them
+                values = clip_to_box(cal.apply(raw, cones[cal.carve]), -hs, hs)  # as predict_sdf closes them
                 scores[k].append(voxel_iou(voxels_protocol(values, -hs, hs), gt).numpy())
             cats.append(batch.category.numpy())
             bar.update(len(images))

@@ -62,16 +62,17 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     kwargs = dict(progress=progress, protocol_workers=protocol_workers)  # batches: the data's eval_batch_size
     model = load(final_ckpt)
     result = evaluate(model, dm, split, **kwargs)
+    coarse_model = load(coarse_ckpt)
     extra = {}
     if coarse_ckpt != final_ckpt:
-        extra["coarse stage alone"] = evaluate(load(coarse_ckpt), dm, split, **kwargs).table
+        extra["coarse stage alone"] = evaluate(coarse_model, dm, split, **kwargs).table
     result = add_baselines(result, dm, BASELINES, model, progress=progress)
     label = f"ours ({schedule[-1]} stage, {result.output})"
     files = write_report(result, out_dir, extra_rows=extra, label=label)
 
     scene = (dm.shading.scene(effects=("shading",)) if dm.shading is not None else
              renderer.Scene(effects=("shading",), background=(1.0, 1.0, 1.0)))
-    pictures = showcase(model, load(coarse_ckpt), dm.dataset(split), dm.categories, scene, out_dir)
+    pictures = showcase(model, coarse_model, dm.dataset(split), dm.categories, scene, out_dir)
     summary = json.loads(Path(files["json"]).read_text())
     return {"table": format_table(result, extra, label), "iou": summary, "calibration": calibrations,
             "files": [str(p) for p in files.values()] + [str(p) for p in pictures]}

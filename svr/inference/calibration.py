@@ -73,16 +73,20 @@ class Calibration:
         mirror = f" (mirror axis {'xyz'[self.mirror_axis]})" if self.carve == "view+mirror" else ""
         return f"carve {self.carve}{mirror}, level {self.level:+.4f}"
 
-    def apply(self, sdf: torch.Tensor, images: torch.Tensor, views: Optional[torch.Tensor],
-              half_side: float) -> torch.Tensor:
-        """(B, N, N, N) SDF grids over ``[-half_side, half_side]^3`` predicted from ``images``
-        (B, 4, S, S) RGBA taken from NMR views ``views`` (B,) -> the calibrated grids. Without views
-        nothing can be carved: only the level applies."""
-        out = sdf
-        if self.carve != "none" and views is not None:
-            axis = self.mirror_axis if self.carve == "view+mirror" else None
-            out = torch.maximum(out, silhouette_cone_sdf(images[:, 3], views, sdf.shape[-1], half_side,
-                                                         axis, self.threshold).to(out))
+    def cone(self, images: torch.Tensor, views: Optional[torch.Tensor], resolution: int,
+             half_side: float) -> Optional[torch.Tensor]:
+        """The field this calibration carves with (``silhouette_cone_sdf``) for ``images`` (B, 4, S,
+        S) RGBA taken from NMR views ``views`` (B,), on the N^3 grid over ``[-half_side,
+        half_side]^3``; None when it carves nothing, or without views (nothing can be carved)."""
+        if self.carve == "none" or views is None:
+            return None
+        axis = self.mirror_axis if self.carve == "view+mirror" else None
+        return silhouette_cone_sdf(images[:, 3], views, resolution, half_side, axis, self.threshold)
+
+    def apply(self, sdf: torch.Tensor, cone: Optional[torch.Tensor]) -> torch.Tensor:
+        """(B, N, N, N) SDF grids -> the calibrated grids: intersected with ``cone`` (``self.cone``
+        of the images they were predicted from; None: no carving), then the level added."""
+        out = sdf if cone is None else torch.maximum(sdf, cone.to(sdf))
         return out + float(self.level) if float(self.level) != 0.0 else out
 
 

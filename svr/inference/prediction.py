@@ -190,9 +190,10 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
         vc = v[i * batch_size:(i + 1) * batch_size].to(m.device) if v is not None else None
         chunk = chunk.to(m.device, non_blocking=True)
         out = m.net(chunk, refine=use_refiner, views=vc)
-        coarse.append(out.coarse if post is None else post.apply(out.coarse, chunk, vc, m.half_side))
+        cone = post.cone(chunk, vc, out.coarse.shape[-1], m.half_side) if post is not None else None
+        coarse.append(out.coarse if post is None else post.apply(out.coarse, cone))
         if out.refined is not None:
-            refined.append(out.refined if post is None else post.apply(out.refined, chunk, vc, m.half_side))
+            refined.append(out.refined if post is None else post.apply(out.refined, cone))
     coarse_t = torch.cat(coarse)
     refined_t = torch.cat(refined) if use_refiner else None
     if clip:
