@@ -44,6 +44,7 @@ class DemoSettings(TrainSettings):
         quiet: no progress bars.
         calibrate: calibrate the checkpoints on the validation split and score them calibrated
             (false: score the network's raw output).
+        recalibrate: search the calibrations again even where the checkpoints hold one.
     """
 
     out: str
@@ -52,12 +53,15 @@ class DemoSettings(TrainSettings):
     protocol_workers: int
     quiet: bool
     calibrate: bool
+    recalibrate: bool
 
     def __post_init__(self) -> None:
         if not self.out:
             raise ValueError("out must name the demo's folder")
         if self.eval_only and self.fresh:
             raise ValueError("eval_only=true and fresh=true contradict each other: choose one")
+        if self.recalibrate and not self.calibrate:
+            raise ValueError("recalibrate=true needs calibrate=true")
         check_int(self.protocol_workers, "protocol_workers", 0)
 
     def training(self) -> TrainSettings:
@@ -121,7 +125,8 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
         train_wall = time.time() - start
     t_eval = time.time()
     result = score_run(train_settings, folder, out_dir, progress=not settings.quiet,
-                       protocol_workers=settings.protocol_workers, calibrate=settings.calibrate)
+                       protocol_workers=settings.protocol_workers, calibrate=settings.calibrate,
+                       recalibrate=settings.recalibrate)
     steps = folder.steps(schedule, {s: train_settings.stage.of(s).max_steps for s in schedule})
     train_seconds = folder.train_seconds(schedule)
     timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,

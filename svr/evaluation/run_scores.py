@@ -22,10 +22,11 @@ from svr.training.run_folder import RunFolder
 from svr.training.settings import TrainSettings
 
 
-def calibrate_checkpoint(path: Path, datamodule, progress: bool = True) -> dict:
-    """The calibration record of the checkpoint at ``path``: the stored one, else one searched on the
-    data module's validation split and stored (``svr.evaluation.calibration``)."""
-    record = stored_calibration(path)
+def calibrate_checkpoint(path: Path, datamodule, progress: bool = True, again: bool = False) -> dict:
+    """The calibration record of the checkpoint at ``path``: the stored one, else (or with ``again``,
+    replacing it) one searched on the data module's validation split and stored
+    (``svr.evaluation.calibration``)."""
+    record = None if again else stored_calibration(path)
     if record is None:
         prepare_split(datamodule, "val", progress=progress)
         search = search_calibration(load_model(path, "cpu"), datamodule.dataset("val"), progress=progress)
@@ -37,11 +38,12 @@ def calibrate_checkpoint(path: Path, datamodule, progress: bool = True) -> dict:
 
 
 def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str = "test", progress: bool = True,
-              protocol_workers: int = 0, calibrate: bool = True) -> dict:
+              protocol_workers: int = 0, calibrate: bool = True, recalibrate: bool = False) -> dict:
     """Scores a finished run with the benchmark protocol: its last stage's checkpoint, its coarse
     stage's and every baseline (``svr.evaluation.baselines``) on the same images; writes the
     evaluation's files, ``predictions.png`` and ``meshes/`` into ``out_dir``. With ``calibrate``
-    each checkpoint is calibrated first (``calibrate_checkpoint``); without, none is applied.
+    each checkpoint is calibrated first (``calibrate_checkpoint``; with ``recalibrate`` searched
+    again even where one is stored); without, none is applied.
 
     Returns:
         ``{"table": markdown, "iou": the iou.json dict, "files": [paths], "calibration": {stage: record}}``.
@@ -53,7 +55,8 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     calibrations = {}
     if calibrate:
         for stage, path in ((schedule[-1], final_ckpt), (schedule[0], coarse_ckpt)):
-            calibrations.setdefault(stage, calibrate_checkpoint(path, dm, progress))
+            if stage not in calibrations:
+                calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate)
 
     def load(path: Path):
         model = load_model(path, "cpu")

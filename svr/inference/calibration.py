@@ -6,8 +6,9 @@ of its supervised views, so it over-fills (on the demo's test split the median p
 every sample whose projection into the input view falls outside the silhouette (the dataset's known
 camera, as the pixel-aligned head reads it), and, with a mirror axis, every sample whose mirror
 image does (the mirror image of the object seen from the same camera has the same silhouette);
-the level then moves the surface inwards by a fixed distance. Both only use the input image and its
-camera, so they apply wherever the network does."""
+the level moves the network's surface inwards by a fixed distance, and the carving cone has a level
+of its own (0: the silhouette's exact cone). Both only use the input image and its camera, so they
+apply wherever the network does."""
 from __future__ import annotations
 
 import math
@@ -32,22 +33,27 @@ class Calibration:
         carve: "none"; "view": intersect with the input silhouette's cone; "view+mirror": also with
             the cone's mirror image across the plane ``mirror_axis`` = 0 through the origin.
         mirror_axis: the world axis (0 = x, 1 = y, 2 = z) of "view+mirror".
-        level: world units added to the SDF (positive: the surface moves inwards).
+        level: world units added to the network's SDF (positive: the surface moves inwards).
         threshold: alpha at or above which an input pixel is silhouette.
+        carve_level: world units added to the carving cone's field (0: the silhouette's exact cone;
+            negative: a wider cone). Records written before this field existed carved with the
+            level added to both, and ``from_dict`` reads them so.
     """
 
     carve: str = "none"
     mirror_axis: Optional[int] = None
     level: float = 0.0
     threshold: float = 0.5
+    carve_level: float = 0.0
 
     def __post_init__(self) -> None:
         if self.carve not in CARVES:
             raise ValueError(f"carve must be one of {', '.join(CARVES)}, got {self.carve!r}")
         if self.carve == "view+mirror" and self.mirror_axis not in (0, 1, 2):
             raise ValueError(f"carve='view+mirror' needs mirror_axis 0, 1 or 2, got {self.mirror_axis!r}")
-        if not math.isfinite(float(self.level)):
-            raise ValueError(f"level must be a finite number, got {self.level!r}")
+        for name in ("level", "carve_level"):
+            if not math.isfinite(float(getattr(self, name))):
+                raise ValueError(f"{name} must be a finite number, got {getattr(self, name)!r}")
         if not 0.0 < float(self.threshold) < 1.0:
             raise ValueError(f"threshold must lie in (0, 1), got {self.threshold!r}")
 
@@ -61,17 +67,20 @@ class Calibration:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], name: str = "calibration") -> "Calibration":
         """The inverse of ``to_dict``; raises ValueError naming ``name`` on unknown keys or values."""
-        unknown = set(data) - {"carve", "mirror_axis", "level", "threshold"}
+        unknown = set(data) - {"carve", "mirror_axis", "level", "threshold", "carve_level"}
         if unknown:
             raise ValueError(f"{name}: unknown keys {sorted(unknown)}")
+        fields = dict(data)
+        fields.setdefault("carve_level", fields.get("level", 0.0))  # the older records' meaning
         try:
-            return cls(**dict(data))
+            return cls(**fields)
         except (TypeError, ValueError) as err:
             raise ValueError(f"{name}: {err}") from None
 
     def describe(self) -> str:
         mirror = f" (mirror axis {'xyz'[self.mirror_axis]})" if self.carve == "view+mirror" else ""
-        return f"carve {self.carve}{mirror}, level {self.level:+.4f}"
+        cone = f" (cone level {self.carve_level:+.4f})" if self.carve != "none" and self.carve_level != 0.0 else ""
+        return f"carve {self.carve}{mirror}{cone}, level {self.level:+.4f}"
 
     def cone(self, images: torch.Tensor, views: Optional[torch.Tensor], resolution: int,
              half_side: float) -> Optional[torch.Tensor]:
@@ -85,9 +94,13 @@ class Calibration:
 
     def apply(self, sdf: torch.Tensor, cone: Optional[torch.Tensor]) -> torch.Tensor:
         """(B, N, N, N) SDF grids -> the calibrated grids: intersected with ``cone`` (``self.cone``
-        of the images they were predicted from; None: no carving), then the level added."""
-        out = sdf if cone is None else torch.maximum(sdf, cone.to(sdf))
-        return out + float(self.level) if float(self.level) != 0.0 else out
+        of the images they were predicted from, its field raised by ``carve_level``; None: no
+        carving), with the level added to the network's field."""
+        out = sdf + float(self.level) if float(self.level) != 0.0 else sdf
+        if cone is None:
+            return out
+        cone = cone.to(sdf)
+        return torch.maximum(out, cone + float(self.carve_level) if float(self.carve_level) != 0.0 else cone)
 
 
 def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:

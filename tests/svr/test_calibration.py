@@ -86,9 +86,27 @@ def test_calibration_settings_are_checked():
         Calibration(level=float("nan"))
     with pytest.raises(ValueError, match="calibration: unknown keys"):
         Calibration.from_dict({"carve": "view", "shrink": 1})
-    cal = Calibration(carve="view+mirror", mirror_axis=0, level=0.01)
+    with pytest.raises(ValueError, match="carve_level must be a finite"):
+        Calibration(carve="view", carve_level=float("inf"))
+    cal = Calibration(carve="view+mirror", mirror_axis=0, level=0.01, carve_level=-0.005)
     assert Calibration.from_dict(cal.to_dict()) == cal
     assert Calibration().is_identity and not cal.is_identity
+    # a record from before carve_level existed carved with the level added to both fields
+    old = Calibration.from_dict({"carve": "view", "mirror_axis": None, "level": 0.01, "threshold": 0.5})
+    assert old.carve_level == 0.01
+
+
+def test_level_moves_the_network_surface_and_carve_level_the_cone():
+    sdf = torch.tensor([-0.10, -0.02, 0.03, -0.30])
+    cone = torch.tensor([-0.05, -0.05, -0.05, 0.01])
+    out = Calibration(carve="view", level=0.04).apply(sdf, cone)
+    # the level lifts the network's field only: the cone still reads -0.05 where it is the larger
+    assert torch.allclose(out, torch.tensor([-0.05, 0.02, 0.07, 0.01]))
+    wider = Calibration(carve="view", level=0.04, carve_level=-0.02).apply(sdf, cone)
+    assert torch.allclose(wider, torch.tensor([-0.06, 0.02, 0.07, -0.01]))
+    legacy = Calibration(carve="view", level=0.04, carve_level=0.04).apply(sdf, cone)
+    assert torch.allclose(legacy, torch.maximum(sdf, cone) + 0.04)
+    assert torch.equal(Calibration(level=0.04).apply(sdf, None), sdf + 0.04)
 
 
 def test_predict_sdf_applies_the_calibration():
@@ -152,6 +170,8 @@ def test_search_finds_the_level_that_undoes_an_overfill(monkeypatch):
     assert search.best.carve == "none" and search.best.level == pytest.approx(voxel, abs=1e-6)
     assert search.best_iou == pytest.approx(1.0) and search.uncalibrated_iou < 0.95
     assert [r["level_voxels"] for r in search.rows[:3]] == [0.0, 0.25, 0.5]
+    # no carving, then the carving with the exact cone; the level moves the network's surface only
+    assert [(r["carve"], r["carve_level_voxels"]) for r in search.rows[::7]] == [("none", 0.0), ("view", 0.0)]
 
 
 def test_stored_calibration_travels_with_the_checkpoint(tmp_path):

@@ -68,6 +68,12 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert "holds a finished run" in printed and "on the validation split in" not in printed  # kept, not redone
     assert final.stat().st_mtime_ns == stamp
+    # recalibrate=true searches both checkpoints again (and stores the new choices)
+    demo([*args, "recalibrate=true"])
+    assert capsys.readouterr().out.count("on the validation split in") == 2
+    with pytest.raises(ValueError, match="recalibrate=true needs calibrate=true"):
+        demo([*args, "recalibrate=true", "calibrate=false"])
+    stamp = final.stat().st_mtime_ns
 
     # A run stopped after the refine stage resumes there and trains only the joint stage.
     import shutil
