@@ -30,6 +30,7 @@ from hydra.utils import instantiate
 from benchmarks.procedural_dispersion import PRESETS, all_voxels, lookup_ceiling
 from benchmarks.report import atomic_write_text, machine_info, save_figure
 from sdfcommon.tooling.commands import compose
+from svr.inference.calibration import Calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = {"demo": "demo", "bench": "bench"}  # configs/experiment/<name>.yaml of each preset
@@ -109,11 +110,7 @@ def calibration_of(folder: Path) -> str:
     records = json.loads(path.read_text()).get("calibration_search") if path.is_file() else None
     if not records:
         return "none"
-    settings = list(records.values())[0]["settings"]
-    text = f"carve {settings['carve']}"
-    if settings["carve"] == "view+mirror":
-        text += f" (axis {'xyz'[settings['mirror_axis']]})"
-    return f"{text}, level {settings['level']:+.4f}"
+    return Calibration.from_dict(list(records.values())[0]["settings"], f"{path}: calibration").describe()
 
 
 def train_row(row: str, preset: str, work: Path, extra: Sequence[str], quiet: bool, rescore: bool = False) -> Path:

@@ -99,4 +99,8 @@ def test_calibration_of_a_scored_row(tmp_path):
     settings = {"carve": "view+mirror", "mirror_axis": 0, "level": 0.0095, "threshold": 0.5}
     (tmp_path / "iou.json").write_text(json.dumps({"calibration_search": {"joint": {"settings": settings},
                                                                    "coarse": {"settings": {**settings, "level": 0.1}}}}))
-    assert calibration_of(tmp_path) == "carve view+mirror (axis x), level +0.0095"
+    # a record from before the cone had its own level carved with the level on both fields
+    assert calibration_of(tmp_path) == "carve view+mirror (mirror axis x) (cone level +0.0095), level +0.0095"
+    (tmp_path / "iou.json").write_text(json.dumps({"calibration_search": {"joint": {"settings": {
+        **settings, "carve_level": 0.0}}}}))
+    assert calibration_of(tmp_path) == "carve view+mirror (mirror axis x), level +0.0095"
