@@ -7,20 +7,20 @@ docs/mvr.md shows the Python API (``reconstruct``, ``Schedule``) as well.
 from .losses import view_image_losses, view_silhouette_losses
 from .metrics import SurfaceDistances, surface_distances
 from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
-from .raycast import EmbreeCaster, RayHits, TriangleGrid, embree_available, mesh_caster
-from .reconstruct import (EvalSettings, GridSettings, NoiseSettings, ReconstructionResult, RigSettings,
+from .reconstruct import (GridSettings, NoiseSettings, ReconstructionResult, RigSettings, ScoringSettings,
                           TargetSettings, default_scene, reconstruct)
 from .runtime import configure_runtime
 from .schedule import Schedule, rule_image_size
+from .settings import reconstruct_with_overrides
 from .shapes import SHAPES, Shape
 from .targets import MESH_FORMATS, Target, TargetImages, load_mesh, make_target, normalise_mesh, shape_mesh
 
 __all__ = [
-    "reconstruct", "ReconstructionResult",
-    "RigSettings", "GridSettings", "TargetSettings", "NoiseSettings", "EvalSettings", "Schedule", "OptimSettings",
+    "reconstruct", "ReconstructionResult", "reconstruct_with_overrides",
+    "RigSettings", "GridSettings", "TargetSettings", "NoiseSettings", "ScoringSettings", "Schedule", "OptimSettings",
     "default_scene", "configure_runtime",
     "Target", "TargetImages", "make_target", "load_mesh", "normalise_mesh", "shape_mesh", "MESH_FORMATS",
-    "SHAPES", "Shape", "mesh_caster", "embree_available", "EmbreeCaster", "TriangleGrid", "RayHits",
+    "SHAPES", "Shape",
     "ViewLosses", "LevelReport", "optimise_level", "fill_cavities", "rule_image_size",
     "view_image_losses", "view_silhouette_losses",
     "surface_distances", "SurfaceDistances",

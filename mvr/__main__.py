@@ -3,11 +3,12 @@
 ``run`` gets it as ``mvr.settings.MVRSettings`` (an unknown or mistyped key fails before out_dir is
 made), sets up the process (``mvr.configure_runtime``) and
 reconstructs (``mvr.reconstruct``) into ``out_dir``, by default ``<paths.output_dir>/mvr/<time>``. The
-only place in mvr that reads hydra configuration; benchmarks reuse ``compose_config`` and
-``reconstruct_kwargs`` so that they run with exactly the command's settings. Errors in settings or
-files (missing, empty or non-watertight mesh, unknown shape, a rerun into an out_dir of other
-settings, a corrupt level checkpoint, ``optim.lr=fast``) are one line ``sdfdiff-mvr: error: ...``
-with exit status 2, and a refused run leaves out_dir as it was (``sdfcommon.tooling.commands``)."""
+only place in mvr that reads hydra configuration; benchmarks run with exactly the command's
+settings through ``mvr.reconstruct_with_overrides`` (``compose_config``, ``reconstruct_kwargs``).
+Errors in settings or files (missing, empty or non-watertight mesh, unknown shape, a rerun into an
+out_dir of other settings, a corrupt level checkpoint, ``optim.lr=fast``) are one line
+``sdfdiff-mvr: error: ...`` with exit status 2, and a refused run leaves out_dir as it was
+(``sdfcommon.tooling.commands``)."""
 from __future__ import annotations
 
 import logging

@@ -1,12 +1,13 @@
 """Where a reconstruction is wrong: its error coloured on the surfaces, seen from the rig's cameras.
-Each surface is ray cast from a few cameras (``mvr.raycast.mesh_caster``), and each pixel's hit
-point gets its exact distance to the *other* surface (``mvr.metrics.one_sided_distances``), the
-quantity whose maximum is the Hausdorff distance. The picture has two rows: the target coloured by
-its distance to the reconstruction, which shows the parts the reconstruction misses (a concavity
-filled in, a thin part lost), and the reconstruction coloured by its distance to the target, which
-shows the parts it adds (a pocket no silhouette carves, a bridge between limbs). The colour is
-Lambert shading (the reconstruction's own scene) times a ramp from light grey (distance 0) through
-yellow to red (``vmax`` and beyond), so that the eye goes to where the distance is large.
+Each surface is ray cast from a few cameras (``sdfcommon.numerics.raycast.mesh_caster``), and each
+pixel's hit point gets its exact distance to the *other* surface
+(``mvr.metrics.one_sided_distances``), the quantity whose maximum is the Hausdorff distance. The
+picture has two rows: the target coloured by its distance to the reconstruction, which shows the
+parts the reconstruction misses (a concavity filled in, a thin part lost), and the reconstruction
+coloured by its distance to the target, which shows the parts it adds (a pocket no silhouette
+carves, a bridge between limbs). The colour is Lambert shading (the reconstruction's own scene)
+times a ramp from light grey (distance 0) through yellow to red (``vmax`` and beyond), so that the
+eye goes to where the distance is large.
 """
 from __future__ import annotations
 
@@ -18,11 +19,11 @@ import torch
 import trimesh
 
 from renderer import Cameras, Scene, shade_lambert
+from sdfcommon.numerics.raycast import mesh_caster
 from sdfcommon.tooling.checks import check_positive
 from sdfcommon.tooling.pictures import labelled_grid
 
 from .metrics import one_sided_distances
-from .raycast import mesh_caster
 
 # The ramp's stops: (fraction of vmax, RGB).
 _RAMP = np.array([[0.0, 0.85, 0.85, 0.85], [0.25, 0.95, 0.9, 0.3], [0.6, 0.95, 0.5, 0.1], [1.0, 0.8, 0.0, 0.0]])
@@ -65,7 +66,7 @@ def error_views(mesh: trimesh.Trimesh, other: trimesh.Trimesh, cameras: Cameras,
     v, h, w, _ = directions.shape
     o = origins.reshape(-1, 3).numpy()
     d = directions.reshape(-1, 3).numpy()
-    hits = mesh_caster(mesh.vertices, mesh.faces).cast(o, d)
+    hits = mesh_caster(mesh.vertices, mesh.faces).first_hits(o, d)
     idx = np.nonzero(hits.hit)[0]
     points = o[idx] + hits.t[idx, None] * d[idx]
     normals = np.asarray(mesh.face_normals)[hits.face[idx]]

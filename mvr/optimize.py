@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Sequence, Union
+from typing import Optional, Sequence, Union
 
 import numpy as np
 import torch
@@ -234,66 +234,89 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
     """
     if grid.batch_size != 1:
         raise ValueError(f"optimise_level fits one grid, got a batch of {grid.batch_size}")
-    settings = losses.settings
     t_start = time.perf_counter()
+    fit = _start_fitting(grid, losses.settings)
+    passes = _run_passes(fit, losses, level, seed, progress, description, t_start)
+    final = SDFGrid(fit.values.detach().clone(), fit.lo, fit.hi)
+    with torch.no_grad():
+        _, eik, lap = losses.regulariser(final)
+    report = LevelReport(
+        level=level, resolution=grid.resolution[0], image_size=losses.cameras.image_size[0],
+        passes=len(passes.history), updates=passes.updates, seconds=time.perf_counter() - t_start,
+        loss_start=passes.loss_start, loss_end=float(passes.view_loss.mean()),
+        image_loss=float(passes.image_loss.mean()), silhouette_loss=float(passes.silhouette_loss.mean()),
+        eikonal=float(eik), laplacian=float(lap), stop_reason=passes.stop_reason, history=passes.history,
+    )
+    return final, report
+
+
+@dataclass(frozen=True)
+class _Fitting:
+    """What one level fits, updated in place: the grid values (1, N, N, N) that carry gradients,
+    the grid's box (lo, hi: (3,) world), Adam over the values and the voxel size (world)."""
+
+    values: torch.Tensor
+    lo: torch.Tensor
+    hi: torch.Tensor
+    opt: torch.optim.Adam
+    voxel: float
+
+    def grid(self) -> SDFGrid:
+        """The grid, differentiable in the values."""
+        return SDFGrid(self.values, self.lo, self.hi)
+
+    def detached(self) -> SDFGrid:
+        """The grid without gradients (for scoring)."""
+        return SDFGrid(self.values.detach(), self.lo, self.hi)
+
+
+@dataclass(frozen=True)
+class _Passes:
+    """What a level's passes did: the mean view loss before them, each view's (V,) total, image and
+    silhouette losses after them, the per-pass history, the updates made and why they stopped."""
+
+    loss_start: float
+    view_loss: torch.Tensor
+    image_loss: torch.Tensor
+    silhouette_loss: torch.Tensor
+    history: list
+    updates: int
+    stop_reason: str
+
+
+def _start_fitting(grid: SDFGrid, settings: OptimSettings) -> _Fitting:
+    """A copy of the grid's values to fit, and Adam over them (its step in voxels of this grid)."""
     voxel = float(grid.voxel_size.min())
     values = grid.values.detach().clone().requires_grad_(True)
-    lo, hi = grid.bbox_min, grid.bbox_max
     opt = torch.optim.Adam([values], lr=settings.lr * voxel, betas=settings.betas, eps=settings.eps)
+    return _Fitting(values=values, lo=grid.bbox_min, hi=grid.bbox_max, opt=opt, voxel=voxel)
+
+
+def _run_passes(fit: _Fitting, losses: ViewLosses, level: int, seed: int, progress: bool, description: str,
+                t_start: float) -> _Passes:
+    """Passes over the views until a stopping rule of ``losses.settings`` holds (``t_start``: the
+    level's ``time.perf_counter()`` at its start, for ``max_seconds``)."""
+    settings = losses.settings
     gen = torch.Generator().manual_seed(int(seed) * 1000 + level)
     max_passes = int(settings.for_level("max_passes", level))
     max_seconds = settings.for_level("max_seconds", level)
     n_views = losses.cameras.batch_size
-
-    def current() -> SDFGrid:
-        return SDFGrid(values, lo, hi)
-
     history: list[dict] = []
-    updates = 0
-    stop = "max_passes"
-    view_loss, img_v, sil_v = losses.all_views(SDFGrid(values.detach(), lo, hi))
+    updates, stalls, stop = 0, 0, "max_passes"
+    view_loss, img_v, sil_v = losses.all_views(fit.detached())
     loss_start = float(view_loss.mean())
     bar = tqdm(total=max_passes, desc=description or f"level {level}", disable=not progress, leave=True,
                dynamic_ncols=True)
-    stalls = 0
-    timed_out = False
     try:
         for pass_index in range(max_passes):
             t_pass = time.perf_counter()
             mean = float(view_loss.mean())
-            before = values.detach().clone()
-            pass_updates = 0
+            before = fit.values.detach().clone()
             order = torch.randperm(n_views, generator=gen) if settings.shuffle_views else torch.arange(n_views)
-            for v in order.tolist():
-                hard = float(view_loss[v]) > mean
-                budget = settings.hard_view_updates if hard else settings.easy_view_updates
-                previous = math.inf
-                for k in range(budget):
-                    g = current()
-                    data, _, _ = losses.data_loss(g, torch.tensor([v]))
-                    reg, _, _ = losses.regulariser(g)
-                    total = data[0] + reg
-                    value = float(total.detach())
-                    if k > 0 and value > previous:
-                        break  # the last update raised this view's loss: move on
-                    if hard and k > 0 and float(data[0].detach()) < mean:
-                        break
-                    previous = value
-                    opt.zero_grad(set_to_none=True)
-                    total.backward()
-                    opt.step()
-                    pass_updates += 1
-                if max_seconds is not None and time.perf_counter() - t_start > max_seconds:
-                    timed_out = True
-                    break
+            pass_updates, timed_out = _update_views(fit, losses, view_loss, order, t_start, max_seconds)
             updates += pass_updates
-            for group in opt.param_groups:
-                group["lr"] *= settings.lr_decay
-            if settings.fill_cavities:
-                with torch.no_grad():
-                    values.copy_(fill_cavities(values[0]).unsqueeze(0))
-            step = float((values.detach() - before).abs().max()) / voxel
-            view_loss, img_v, sil_v = losses.all_views(SDFGrid(values.detach(), lo, hi))
+            step = _end_pass(fit, settings, before)
+            view_loss, img_v, sil_v = losses.all_views(fit.detached())
             new_mean = float(view_loss.mean())
             history.append({"pass": pass_index, "loss_before": mean, "loss_after": new_mean,
                             "updates": pass_updates, "max_step_voxels": step,
@@ -305,27 +328,78 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
                 break
             improved = (mean - new_mean) / max(abs(mean), 1e-30)
             stalls = stalls + 1 if improved < settings.rel_tol else 0
-            if pass_index + 1 >= settings.min_passes:
-                if new_mean <= settings.loss_tol:
-                    stop = "loss_tol"
-                    break
-                if step <= settings.step_tol:
-                    stop = "step_tol"
-                    break
-                if stalls >= settings.patience:
-                    stop = "plateau"
-                    break
+            converged = _convergence(settings, pass_index, new_mean, step, stalls)
+            if converged is not None:
+                stop = converged
+                break
     finally:
         bar.close()
+    return _Passes(loss_start=loss_start, view_loss=view_loss, image_loss=img_v, silhouette_loss=sil_v,
+                   history=history, updates=updates, stop_reason=stop)
 
-    final = SDFGrid(values.detach().clone(), lo, hi)
-    with torch.no_grad():
-        _, eik, lap = losses.regulariser(final)
-    report = LevelReport(
-        level=level, resolution=grid.resolution[0], image_size=losses.cameras.image_size[0],
-        passes=len(history), updates=updates, seconds=time.perf_counter() - t_start,
-        loss_start=loss_start, loss_end=float(view_loss.mean()), image_loss=float(img_v.mean()),
-        silhouette_loss=float(sil_v.mean()), eikonal=float(eik), laplacian=float(lap),
-        stop_reason=stop, history=history,
-    )
-    return final, report
+
+def _update_views(fit: _Fitting, losses: ViewLosses, view_loss: torch.Tensor, order: torch.Tensor,
+                  t_start: float, max_seconds: Optional[float]) -> tuple[int, bool]:
+    """One pass's updates, view by view in ``order`` (V,) long: a view whose loss in ``view_loss``
+    (V,) is above the mean is hard (more updates). Returns (updates made, whether the level's
+    ``max_seconds`` ran out, which ends the pass early)."""
+    mean = float(view_loss.mean())
+    made = 0
+    for v in order.tolist():
+        made += _update_view(fit, losses, v, float(view_loss[v]) > mean, mean)
+        if max_seconds is not None and time.perf_counter() - t_start > max_seconds:
+            return made, True
+    return made, False
+
+
+def _update_view(fit: _Fitting, losses: ViewLosses, view: int, hard: bool, mean: float) -> int:
+    """Adam updates on one view (its loss plus the regularisers) until its budget is spent, an
+    update raised its loss, or (a hard view) its loss fell below the pass's ``mean``; returns the
+    number of updates made."""
+    settings = losses.settings
+    budget = settings.hard_view_updates if hard else settings.easy_view_updates
+    previous = math.inf
+    made = 0
+    for k in range(budget):
+        g = fit.grid()
+        data, _, _ = losses.data_loss(g, torch.tensor([view]))
+        reg, _, _ = losses.regulariser(g)
+        total = data[0] + reg
+        value = float(total.detach())
+        if k > 0 and value > previous:
+            break  # the last update raised this view's loss: move on
+        if hard and k > 0 and float(data[0].detach()) < mean:
+            break
+        previous = value
+        fit.opt.zero_grad(set_to_none=True)
+        total.backward()
+        fit.opt.step()
+        made += 1
+    return made
+
+
+def _end_pass(fit: _Fitting, settings: OptimSettings, before: torch.Tensor) -> float:
+    """After a pass: the learning rate decays and cavities are filled (where the settings say);
+    returns the largest change of a value since ``before`` (the values at the pass's start), in
+    voxels."""
+    for group in fit.opt.param_groups:
+        group["lr"] *= settings.lr_decay
+    if settings.fill_cavities:
+        with torch.no_grad():
+            fit.values.copy_(fill_cavities(fit.values[0]).unsqueeze(0))
+    return float((fit.values.detach() - before).abs().max()) / fit.voxel
+
+
+def _convergence(settings: OptimSettings, pass_index: int, mean: float, step: float, stalls: int) -> Optional[str]:
+    """Which convergence rule stops the level after pass ``pass_index`` (mean view loss ``mean``,
+    largest step ``step`` voxels, ``stalls`` passes in a row without enough improvement): "loss_tol",
+    "step_tol", "plateau", or None (go on; never before ``min_passes``)."""
+    if pass_index + 1 < settings.min_passes:
+        return None
+    if mean <= settings.loss_tol:
+        return "loss_tol"
+    if step <= settings.step_tol:
+        return "step_tol"
+    if stalls >= settings.patience:
+        return "plateau"
+    return None

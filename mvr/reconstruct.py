@@ -15,6 +15,7 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 import torch
+import trimesh
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 from sdfcommon.tooling import outputs
@@ -26,7 +27,7 @@ from sdfcommon.tooling.serialization import load_torch
 from .metrics import NORMALISATION, surface_distances
 from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
 from .schedule import Schedule
-from .targets import Target, make_target
+from .targets import Target, TargetImages, make_target
 
 log = logging.getLogger("mvr")
 
@@ -91,8 +92,9 @@ class NoiseSettings:
 
 
 @dataclass(frozen=True)
-class EvalSettings:
-    """Evaluation: surface samples per mesh, and the views shown in views.png."""
+class ScoringSettings:
+    """How the result is scored and shown (configs/mvr.yaml's ``evaluation``): surface samples per
+    mesh for the Hausdorff and Chamfer distances, and the views shown in views.png."""
 
     samples: int = 50_000
     views: Sequence[int] = (0, 2, 4, 6, 12, 18)
@@ -134,8 +136,12 @@ def _checkpoint_path(out_dir: Path, level: int) -> Path:
     return out_dir / "checkpoints" / f"level_{level:02d}.pt"
 
 
-def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int):
-    """(next level, grid values, bbox, reports) from the last finished level, or None."""
+def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int) -> Optional[_ResumePoint]:
+    """The last finished level's checkpoint in ``out_dir``, or None where there is none.
+
+    Raises:
+        ValueError: the checkpoint is unreadable, not mvr's, of other settings or beyond the schedule.
+    """
     found = sorted((out_dir / "checkpoints").glob("level_*.pt")) if (out_dir / "checkpoints").is_dir() else []
     if not found:
         return None
@@ -153,7 +159,8 @@ def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int):
     level = int(ckpt["level"])
     if level >= n_levels:
         raise ValueError(f"checkpoint {str(found[-1])!r} is for level {level}, beyond the schedule's {n_levels}")
-    return level + 1, ckpt["values"], ckpt["bbox_min"], ckpt["bbox_max"], [LevelReport(**r) for r in ckpt["reports"]]
+    return _ResumePoint(next_level=level + 1, values=ckpt["values"], bbox_min=ckpt["bbox_min"],
+                        bbox_max=ckpt["bbox_max"], reports=[LevelReport(**r) for r in ckpt["reports"]])
 
 
 def perturbed_cameras(cameras: Cameras, offsets: torch.Tensor) -> Cameras:
@@ -192,7 +199,7 @@ def reconstruct(
     schedule: Schedule = Schedule(),
     optim: OptimSettings = OptimSettings(),
     noise: NoiseSettings = NoiseSettings(),
-    evaluation: EvalSettings = EvalSettings(),
+    evaluation: ScoringSettings = ScoringSettings(),
     scene: Optional[Scene] = None,
     trace: TraceSettings = TraceSettings(),
     backend: str = "auto",
@@ -226,6 +233,88 @@ def reconstruct(
     """
     t_run = time.perf_counter()
     scene = default_scene() if scene is None else scene
+    _check_settings(scene, optim, target_settings, grid)
+    plan = _plan_run(target, out_dir, rig=rig, grid=grid, target_settings=target_settings, schedule=schedule,
+                     optim=optim, noise=noise, evaluation=evaluation, scene=scene, trace=trace, backend=backend,
+                     seed=seed)
+    # Everything that can refuse the run (the resume point, the target) comes before the first
+    # file is written or an old checkpoint removed.
+    state = _load_resume_point(plan.out, plan.fingerprint, len(plan.resolutions)) if resume else None
+    t0 = time.perf_counter()
+    tgt = target if isinstance(target, Target) else make_target(
+        plan.spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution)
+    seconds_target = time.perf_counter() - t0
+    _prepare_out_dir(plan, resume)
+    log.info("target %s: %d faces, bbox diagonal %.4f", tgt.source, len(tgt.mesh.faces), tgt.diagonal)
+
+    fit = _fit_levels(plan, tgt, state, progress)
+    return _evaluate_and_write(plan, tgt, fit, state, seconds_target, t_run)
+
+
+@dataclass(frozen=True)
+class _RunPlan:
+    """What the steps of one run need: the settings ``reconstruct`` got (how views are made, what
+    is fitted, how it is scored), and what follows from them: ``spec`` (the target as named: a
+    shape, a file, a Target's source), ``fingerprinted`` (the settings that shape the optimisation,
+    written to settings.json; a resumed run must match their ``fingerprint``), the grid resolution
+    of each level and the grid's box ``[lo, hi]`` ((3,) float32 world)."""
+
+    out: Path
+    spec: str
+    rig: RigSettings
+    scene: Scene
+    trace: TraceSettings
+    backend: str
+    init_radius: float
+    schedule: Schedule
+    optim: OptimSettings
+    noise: NoiseSettings
+    seed: int
+    evaluation: ScoringSettings
+    fingerprinted: dict
+    fingerprint: str
+    resolutions: list
+    lo: torch.Tensor
+    hi: torch.Tensor
+
+
+@dataclass(frozen=True)
+class _ResumePoint:
+    """The last finished level's checkpoint: the next level to fit, the grid (values (1, N, N, N),
+    its box) and the reports of the levels done."""
+
+    next_level: int
+    values: torch.Tensor
+    bbox_min: torch.Tensor
+    bbox_max: torch.Tensor
+    reports: list
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """What the levels produced: the fitted grid, every level's report (resumed ones first), the
+    last level's (true) cameras and the seconds spent rendering target images."""
+
+    grid: SDFGrid
+    reports: list
+    cameras: Cameras
+    seconds_images: float
+
+
+@dataclass(frozen=True)
+class _Seconds:
+    """Where a run's time went (seconds; ``run_start``: its ``time.perf_counter()`` at the start)."""
+
+    target: float
+    images: float
+    levels: float
+    evaluation: float
+    run_start: float
+
+
+def _check_settings(scene: Scene, optim: OptimSettings, target_settings: TargetSettings,
+                    grid: GridSettings) -> None:
+    """Refuses settings that do not fit together (each object checked itself when it was made)."""
     check_instance(scene, "scene", Scene, "a renderer.Scene")
     if not scene.wants("shading"):
         raise ValueError("scene.effects must include 'shading' (the image loss compares shaded images)")
@@ -234,79 +323,124 @@ def reconstruct(
     if target_settings.extent >= 2 * grid.half_size:
         raise ValueError(f"target extent {target_settings.extent} does not fit the grid box of side "
                          f"{2 * grid.half_size}")
-    out = Path(out_dir)
+
+
+def _plan_run(target: Union[str, Path, Target], out_dir: Union[str, Path], *, rig: RigSettings,
+              grid: GridSettings, target_settings: TargetSettings, schedule: Schedule, optim: OptimSettings,
+              noise: NoiseSettings, evaluation: ScoringSettings, scene: Scene, trace: TraceSettings,
+              backend: str, seed: int) -> _RunPlan:
+    """The run's plan (``_RunPlan``) from ``reconstruct``'s arguments."""
     spec = target.source if isinstance(target, Target) else str(target)
     # What shapes the optimisation (the fingerprint a resumed run must match); evaluation is not.
-    settings = {
+    fingerprinted = {
         "target": spec, "rig": asdict(rig), "grid": asdict(grid), "target_settings": asdict(target_settings),
         "schedule": asdict(schedule), "optim": asdict(optim), "noise": asdict(noise),
         "scene": repr(scene), "trace": asdict(trace), "seed": seed,
     }
-    fingerprint = _fingerprint(settings)
-    resolutions = schedule.grid_resolutions()
-    lo = torch.full((3,), -grid.half_size)
-    hi = torch.full((3,), grid.half_size)
+    return _RunPlan(out=Path(out_dir), spec=spec, rig=rig, scene=scene, trace=trace, backend=backend,
+                    init_radius=grid.init_radius, schedule=schedule, optim=optim, noise=noise, seed=seed,
+                    evaluation=evaluation, fingerprinted=fingerprinted, fingerprint=_fingerprint(fingerprinted),
+                    resolutions=schedule.grid_resolutions(), lo=torch.full((3,), -grid.half_size),
+                    hi=torch.full((3,), grid.half_size))
 
-    # Everything that can refuse the run (the resume point, the target) comes before the first
-    # file is written or an old checkpoint removed.
-    state = _load_resume_point(out, fingerprint, len(resolutions)) if resume else None
-    t0 = time.perf_counter()
-    tgt = target if isinstance(target, Target) else make_target(
-        spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution)
-    seconds_target = time.perf_counter() - t0
+
+def _prepare_out_dir(plan: _RunPlan, resume: bool) -> None:
+    """Makes the output folder, clears what a killed run or (``resume=False``) an earlier one left,
+    and writes settings.json."""
+    out = plan.out
     out.mkdir(parents=True, exist_ok=True)
     outputs.remove_stale_temporaries(out)  # what a run killed mid-write (kill -9) left
     if not resume:
         for old in (out / "checkpoints").glob("level_*.pt") if (out / "checkpoints").is_dir() else []:
             old.unlink()
-    outputs.write_json(out / "settings.json", {**settings, "evaluation": asdict(evaluation), "backend": backend,
-                                               "fingerprint": fingerprint})
-    log.info("target %s: %d faces, bbox diagonal %.4f", tgt.source, len(tgt.mesh.faces), tgt.diagonal)
+    outputs.write_json(out / "settings.json", {**plan.fingerprinted, "evaluation": asdict(plan.evaluation),
+                                               "backend": plan.backend, "fingerprint": plan.fingerprint})
 
-    gen = torch.Generator().manual_seed(int(seed))
-    cam_offsets = torch.randn(26, 3, generator=gen, dtype=torch.float64) * noise.camera_std
 
+def _starting_grid(plan: _RunPlan, state: Optional[_ResumePoint]) -> tuple[int, SDFGrid, list[LevelReport]]:
+    """(first level to fit, its starting grid, the reports so far): the initial sphere at the first
+    level's resolution, or the resume point's grid."""
     if state is None:
-        start_level, reports = 0, []
-        current = SDFGrid.from_function(lambda p: p.norm(dim=-1) - grid.init_radius, resolutions[0], lo, hi)
-    else:
-        start_level, values, lo_c, hi_c, reports = state
-        current = SDFGrid(values, lo_c, hi_c)
-        log.info("resuming after level %d (%d^3) from %s", start_level - 1, current.resolution[0], out)
+        radius = plan.init_radius
+        return 0, SDFGrid.from_function(lambda p: p.norm(dim=-1) - radius, plan.resolutions[0], plan.lo, plan.hi), []
+    grid = SDFGrid(state.values, state.bbox_min, state.bbox_max)
+    log.info("resuming after level %d (%d^3) from %s", state.next_level - 1, grid.resolution[0], plan.out)
+    return state.next_level, grid, state.reports
 
+
+def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], progress: bool) -> _Fit:
+    """Fits the grid level by level, coarse to fine, from the start or the resume point; each
+    finished level is checkpointed and levels.json/csv rewritten."""
+    gen = torch.Generator().manual_seed(int(plan.seed))
+    cam_offsets = torch.randn(26, 3, generator=gen, dtype=torch.float64) * plan.noise.camera_std
+    start_level, current, reports = _starting_grid(plan, state)
     seconds_images = 0.0
-    cams_true = rig.cameras(16)
-    for level in range(start_level, len(resolutions)):
-        res = resolutions[level]
+    cams_true = plan.rig.cameras(16)
+    for level in range(start_level, len(plan.resolutions)):
+        res = plan.resolutions[level]
         if current.resolution[0] != res:
             current = current.resample(res)
-        size = schedule.image_size_for(cams_true, lo, hi, res)
-        cams_true = rig.cameras(size)
+        size = plan.schedule.image_size_for(cams_true, plan.lo, plan.hi, res)
+        cams_true = plan.rig.cameras(size)
         t0 = time.perf_counter()
-        views = tgt.render(cams_true, scene)
+        views = tgt.render(cams_true, plan.scene)
         seconds_images += time.perf_counter() - t0
-        images, masks = views.images, views.masks.float()
-        if noise.image_std > 0:
-            g = torch.Generator().manual_seed(int(seed) * 7919 + level)
-            images = images + noise.image_std * torch.randn(images.shape, generator=g)
-            masks = masks + noise.image_std * torch.randn(masks.shape, generator=g)
-        cams_opt = perturbed_cameras(cams_true, cam_offsets) if noise.camera_std > 0 else cams_true
-        losses = ViewLosses(cams_opt, images, masks, scene, trace, backend, optim)
-        desc = f"level {level + 1}/{len(resolutions)} {res}^3 {size}px"
-        current, report = optimise_level(current, losses, level, seed, progress, desc)
+        losses = _level_losses(plan, views, cams_true, cam_offsets, level)
+        desc = f"level {level + 1}/{len(plan.resolutions)} {res}^3 {size}px"
+        current, report = optimise_level(current, losses, level, plan.seed, progress, desc)
         reports.append(report)
         log.info("%s: %d passes, %d updates, loss %.3e -> %.3e, %.1fs (%s)", desc, report.passes, report.updates,
                  report.loss_start, report.loss_end, report.seconds, report.stop_reason)
-        outputs.write_torch(_checkpoint_path(out, level), {
-            "fingerprint": fingerprint, "level": level, "values": current.values.detach().clone(),
-            "bbox_min": current.bbox_min, "bbox_max": current.bbox_max,
-            "reports": [asdict(r) for r in reports]})
-        _write_levels(out, reports)
+        _save_level(plan, level, current, reports)
+    return _Fit(grid=current, reports=reports, cameras=cams_true, seconds_images=seconds_images)
 
-    # --- outputs
+
+def _level_losses(plan: _RunPlan, views: TargetImages, cams_true: Cameras, cam_offsets: torch.Tensor,
+                  level: int) -> ViewLosses:
+    """One level's losses: the target views with the image noise of ``plan.noise`` (seeded per
+    level), seen from the cameras the optimiser believes in (moved by ``cam_offsets`` (26, 3)
+    where there is camera noise)."""
+    images, masks = views.images, views.masks.float()
+    if plan.noise.image_std > 0:
+        g = torch.Generator().manual_seed(int(plan.seed) * 7919 + level)
+        images = images + plan.noise.image_std * torch.randn(images.shape, generator=g)
+        masks = masks + plan.noise.image_std * torch.randn(masks.shape, generator=g)
+    cams_opt = perturbed_cameras(cams_true, cam_offsets) if plan.noise.camera_std > 0 else cams_true
+    return ViewLosses(cams_opt, images, masks, plan.scene, plan.trace, plan.backend, plan.optim)
+
+
+def _save_level(plan: _RunPlan, level: int, grid: SDFGrid, reports: list[LevelReport]) -> None:
+    """The finished level's checkpoint (the point a rerun resumes from) and levels.json/csv."""
+    outputs.write_torch(_checkpoint_path(plan.out, level), {
+        "fingerprint": plan.fingerprint, "level": level, "values": grid.values.detach().clone(),
+        "bbox_min": grid.bbox_min, "bbox_max": grid.bbox_max,
+        "reports": [asdict(r) for r in reports]})
+    _write_levels(plan.out, reports)
+
+
+def _evaluate_and_write(plan: _RunPlan, tgt: Target, fit: _Fit, state: Optional[_ResumePoint],
+                        seconds_target: float, t_run: float) -> ReconstructionResult:
+    """The run's end: the final grid and meshes, views.png, the surface distances and metrics.json
+    (``t_run``: the run's ``time.perf_counter()`` at its start)."""
     t_eval = time.perf_counter()
-    values = fill_cavities(current.values[0]) if optim.fill_cavities else current.values[0].detach()
-    final = SDFGrid(values.unsqueeze(0), current.bbox_min, current.bbox_max)
+    final, mesh = _write_final_grid(plan.out, fit, tgt, plan.optim.fill_cavities)
+    backend_used = _write_views_picture(plan, tgt, fit.cameras, final)
+    metrics = _score_surface(mesh, tgt, plan.evaluation.samples, plan.seed)
+    seconds = _Seconds(target=seconds_target, images=fit.seconds_images,
+                       levels=float(sum(r.seconds for r in fit.reports)),
+                       evaluation=time.perf_counter() - t_eval, run_start=t_run)
+    metrics.update(_describe_run(seconds, state, fit.reports, final, mesh, tgt, backend_used))
+    outputs.write_json(plan.out / "metrics.json", metrics)
+    log.info("hausdorff_rel %s chamfer_rel %s in %.1fs -> %s", metrics.get("hausdorff_rel"),
+             metrics.get("chamfer_rel"), metrics["seconds"], plan.out)
+    return ReconstructionResult(out_dir=plan.out, grid=final, mesh=mesh, metrics=metrics, levels=fit.reports)
+
+
+def _write_final_grid(out: Path, fit: _Fit, tgt: Target, fill: bool) -> tuple[SDFGrid, trimesh.Trimesh]:
+    """The final grid (cavities filled when ``fill``) and its mesh, written with the target mesh
+    (grid.npz, mesh.ply, mesh.obj, target.ply, levels.json/csv); returns (grid, mesh)."""
+    values = fill_cavities(fit.grid.values[0]) if fill else fit.grid.values[0].detach()
+    final = SDFGrid(values.unsqueeze(0), fit.grid.bbox_min, fit.grid.bbox_max)
     mesh = sdf_to_mesh(values, final.bbox_min.numpy(), final.bbox_max.numpy())
     outputs.write_npz(out / "grid.npz", values=values.numpy().astype(np.float32),
                       bbox_min=final.bbox_min.numpy(), bbox_max=final.bbox_max.numpy())
@@ -314,31 +448,46 @@ def reconstruct(
     if len(mesh.faces):
         outputs.write_mesh(out / "mesh.ply", mesh)
         outputs.write_mesh(out / "mesh.obj", mesh)
-    _write_levels(out, reports)
+    _write_levels(out, fit.reports)
+    return final, mesh
 
-    size = schedule.image_size_for(cams_true, lo, hi, final.resolution[0])
-    shown = list(evaluation.views)
-    cams_show = rig.cameras(size)[shown]
+
+def _write_views_picture(plan: _RunPlan, tgt: Target, cameras: Cameras, final: SDFGrid) -> str:
+    """views.png: target, render and |difference| of ``plan.evaluation.views`` at the image size
+    the schedule gives the final grid (from the last level's ``cameras``); returns the march
+    backend the render used."""
+    size = plan.schedule.image_size_for(cameras, plan.lo, plan.hi, final.resolution[0])
+    shown = list(plan.evaluation.views)
+    cams_show = plan.rig.cameras(size)[shown]
     with torch.no_grad():
-        rendered = render(final, cams_show, scene, trace, backend)
-    target_show = tgt.render(cams_show, scene).images
-    outputs.write_png(out / "views.png", _comparison_image(target_show, rendered.image, shown))
+        rendered = render(final, cams_show, plan.scene, plan.trace, plan.backend)
+    target_show = tgt.render(cams_show, plan.scene).images
+    outputs.write_png(plan.out / "views.png", _comparison_image(target_show, rendered.image, shown))
+    return rendered.trace.backend
 
+
+def _score_surface(mesh: trimesh.Trimesh, tgt: Target, samples: int, seed: int) -> dict:
+    """The metrics' first entries: the target, and the surface distances between the mesh and the
+    target's (``surface_distances``; None where the reconstruction has no surface)."""
     metrics: dict = {"target": tgt.name, "source": tgt.source}
     if len(mesh.faces):
-        dist = surface_distances(mesh, tgt.mesh, evaluation.samples, seed)
+        dist = surface_distances(mesh, tgt.mesh, samples, seed)
         metrics.update(dist.to_dict())
     else:
         metrics.update({"hausdorff_rel": None, "chamfer_rel": None, "hausdorff": None, "chamfer": None,
                         "normalisation": NORMALISATION, "error": "the reconstruction has no surface"})
-    seconds_eval = time.perf_counter() - t_eval
-    seconds_levels = float(sum(r.seconds for r in reports))
-    metrics.update({
-        "seconds": seconds_target + seconds_images + seconds_levels + seconds_eval,
-        "seconds_target": seconds_target, "seconds_target_images": seconds_images,
-        "seconds_optimisation": seconds_levels, "seconds_evaluation": seconds_eval,
-        "seconds_this_run": time.perf_counter() - t_run,
-        "resumed_from_level": start_level if state is not None else None,
+    return metrics
+
+
+def _describe_run(seconds: _Seconds, state: Optional[_ResumePoint], reports: list[LevelReport], final: SDFGrid,
+                  mesh: trimesh.Trimesh, tgt: Target, backend_used: str) -> dict:
+    """The metrics' other entries: where the time went, the levels, the final grid and mesh."""
+    return {
+        "seconds": seconds.target + seconds.images + seconds.levels + seconds.evaluation,
+        "seconds_target": seconds.target, "seconds_target_images": seconds.images,
+        "seconds_optimisation": seconds.levels, "seconds_evaluation": seconds.evaluation,
+        "seconds_this_run": time.perf_counter() - seconds.run_start,
+        "resumed_from_level": state.next_level if state is not None else None,
         "levels": len(reports), "resolutions": [r.resolution for r in reports],
         "image_sizes": [r.image_size for r in reports], "updates": int(sum(r.updates for r in reports)),
         "final_resolution": final.resolution[0],
@@ -349,13 +498,9 @@ def reconstruct(
         "mesh_components": int(len(mesh.split(only_watertight=False))) if len(mesh.faces) else 0,
         "mesh_genus": (2 - int(mesh.euler_number)) / 2 if len(mesh.faces) else None,
         "target_genus": (2 - int(tgt.mesh.euler_number)) / 2,
-        "backend": rendered.trace.backend,
+        "backend": backend_used,
         "threads": torch.get_num_threads(),
-    })
-    outputs.write_json(out / "metrics.json", metrics)
-    log.info("hausdorff_rel %s chamfer_rel %s in %.1fs -> %s", metrics.get("hausdorff_rel"),
-             metrics.get("chamfer_rel"), metrics["seconds"], out)
-    return ReconstructionResult(out_dir=out, grid=final, mesh=mesh, metrics=metrics, levels=reports)
+    }
 
 
 def _write_levels(out: Path, reports: list[LevelReport]) -> None:

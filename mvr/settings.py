@@ -1,16 +1,18 @@
 """The multi-view command's typed settings: ``MVRSettings``, built from configs/mvr.yaml by
 ``sdfcommon.tooling.settings.build_settings`` (an unknown or mistyped key fails before anything is
 written), its ``RuntimeSettings``, and the helpers benchmarks and tests use to run exactly the
-command's settings (``compose_config``, ``reconstruct_kwargs``)."""
+command's settings (``compose_config``, ``reconstruct_kwargs``, ``reconstruct_with_overrides``)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Optional, Sequence, Union
 
 from omegaconf import DictConfig
 
 from mvr.optimize import OptimSettings
-from mvr.reconstruct import EvalSettings, GridSettings, NoiseSettings, RigSettings, TargetSettings
+from mvr.reconstruct import (GridSettings, NoiseSettings, ReconstructionResult, RigSettings, ScoringSettings,
+                             TargetSettings, reconstruct)
 from mvr.schedule import Schedule
 from renderer import Scene, TraceSettings
 from sdfcommon.tooling.checks import check_int
@@ -58,7 +60,7 @@ class MVRSettings:
     schedule: Schedule
     optim: OptimSettings
     noise: NoiseSettings
-    evaluation: EvalSettings
+    evaluation: ScoringSettings
     scene: Scene
     trace: TraceSettings
     paths: PathSettings
@@ -82,4 +84,19 @@ def compose_config(overrides: Sequence[str] = ()) -> DictConfig:
     return compose("mvr", overrides)
 
 
-__all__ = ["MVRSettings", "RuntimeSettings", "RECONSTRUCT_KEYS", "reconstruct_kwargs", "compose_config"]
+def reconstruct_with_overrides(target: str, out_dir: Union[str, Path],
+                               overrides: Sequence[str] = ()) -> ReconstructionResult:
+    """One multi-view reconstruction in this process, with the settings of
+    ``python -m mvr target=<target> out_dir=<out_dir> progress=false <overrides>`` (configs/mvr.yaml,
+    composed and built as the command does). The caller sets the process-wide runtime first
+    (``mvr.configure_runtime``, as the command does from ``runtime.*``).
+
+    Returns:
+        the run's result; its ``metrics`` are what it writes to ``<out_dir>/metrics.json``.
+    """
+    cfg = compose_config([f"target={target}", f"out_dir={out_dir}", "progress=false", *overrides])
+    return reconstruct(target, out_dir, **reconstruct_kwargs(cfg))
+
+
+__all__ = ["MVRSettings", "RuntimeSettings", "RECONSTRUCT_KEYS", "reconstruct_kwargs", "compose_config",
+           "reconstruct_with_overrides"]

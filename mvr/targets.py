@@ -3,7 +3,7 @@ target is a mesh file (.obj, .ply, .off, .stl, .glb, read by trimesh) or a built
 ``mvr.shapes`` (meshed finely by marching cubes). Either way it is centred on the origin and scaled
 so that the longest side of its bounding box is ``extent`` (world units). The target images come
 from the mesh itself: rays through the pixel centres of our cameras are cast against its triangles
-(``mvr.raycast.mesh_caster``: Embree where it installs) and the hits are shaded by
+(``sdfcommon.numerics.raycast.mesh_caster``: Embree where it installs) and the hits are shaded by
 ``renderer.shade_lambert`` with the same scene (lights, ambient, albedo, background) the optimiser
 renders with. The optimiser never sees an image made by its own renderer. Normals for the shading:
 ``"smooth"`` (default) interpolates the mesh's vertex normals with the barycentric weights of the
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Union
+from typing import Optional
 
 import numpy as np
 import torch
@@ -23,9 +23,9 @@ import trimesh
 
 from renderer import Cameras, Scene, shade_lambert
 from sdfcommon.numerics.meshing import sdf_to_mesh
+from sdfcommon.numerics.raycast import RayCaster, mesh_caster
 from sdfcommon.tooling.checks import check_int, check_positive
 
-from .raycast import EmbreeCaster, TriangleGrid, mesh_caster
 from .shapes import SHAPES
 
 MESH_FORMATS = (".obj", ".ply", ".off", ".stl", ".glb")
@@ -64,7 +64,7 @@ class Target:
         self.mesh = mesh
         self.scale = float(scale)
         self.normals = normals
-        self._caster: Optional[Union[EmbreeCaster, TriangleGrid]] = None
+        self._caster: Optional[RayCaster] = None
 
     @property
     def diagonal(self) -> float:
@@ -85,7 +85,7 @@ class Target:
         v, h, w, _ = directions.shape
         o = origins.reshape(-1, 3).numpy()
         d = directions.reshape(-1, 3).numpy()
-        hits = self._caster.cast(o, d)
+        hits = self._caster.first_hits(o, d)
         idx = np.nonzero(hits.hit)[0]
         faces = hits.face[idx]
         if self.normals == "smooth":

@@ -1,4 +1,5 @@
-"""Numerical code on SDF grids that both applications use: the eikonal and Laplacian regularisers
+"""Numerical code that both applications use: on SDF grids, the eikonal and Laplacian regularisers
 (``regularisers``, the PyTorch specification, and ``band_kernel``, the same narrow-band terms as one
-fused numba CPU operation) and marching cubes from grids to meshes (``meshing``).
+fused numba CPU operation) and marching cubes from grids to meshes (``meshing``); on triangle
+meshes, ray casting (``raycast``: Embree, with a numba grid as the fallback backend).
 """

@@ -7,13 +7,14 @@ from dataclasses import replace
 import numpy as np
 import trimesh
 
-from mvr import OptimSettings, Schedule, TargetSettings, configure_runtime, mesh_caster, reconstruct
+from mvr import OptimSettings, Schedule, TargetSettings, configure_runtime, reconstruct
 from mvr.reconstruct import default_scene
+from sdfcommon.numerics.raycast import mesh_caster
 
 
 def _height(mesh: trimesh.Trimesh, x: float) -> float:
     """The height (y) where a ray down from (x, 3, 0) first meets the surface."""
-    hits = mesh_caster(mesh.vertices, mesh.faces).cast(np.array([[x, 3.0, 0.0]]), np.array([[0.0, -1.0, 0.0]]))
+    hits = mesh_caster(mesh.vertices, mesh.faces).first_hits(np.array([[x, 3.0, 0.0]]), np.array([[0.0, -1.0, 0.0]]))
     assert hits.hit[0]
     return 3.0 - float(hits.t[0])
 

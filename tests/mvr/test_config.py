@@ -5,7 +5,7 @@ import pytest
 import torch
 from hydra.errors import ConfigCompositionException
 
-from mvr import (EvalSettings, GridSettings, NoiseSettings, OptimSettings, RigSettings, Schedule,
+from mvr import (GridSettings, NoiseSettings, OptimSettings, RigSettings, Schedule, ScoringSettings,
                  TargetSettings)
 from mvr.settings import MVRSettings, RuntimeSettings, compose_config, reconstruct_kwargs
 from mvr.reconstruct import default_scene
@@ -21,7 +21,7 @@ def test_defaults_instantiate():
     kw = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused"]))
     expected = {"rig": RigSettings, "grid": GridSettings, "target_settings": TargetSettings,
                 "schedule": Schedule, "optim": OptimSettings, "noise": NoiseSettings,
-                "evaluation": EvalSettings, "scene": Scene, "trace": TraceSettings}
+                "evaluation": ScoringSettings, "scene": Scene, "trace": TraceSettings}
     for key, cls in expected.items():
         assert isinstance(kw[key], cls), key
     assert kw["schedule"].grid_resolutions() == [8, 16, 32, 64]  # paper: 8^3 up to 64^3

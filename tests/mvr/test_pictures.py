@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from PIL import Image
 
-from mvr import EvalSettings, OptimSettings, Schedule, TargetSettings, configure_runtime, reconstruct
+from mvr import OptimSettings, Schedule, ScoringSettings, TargetSettings, configure_runtime, reconstruct
 
 
 def test_views_png_is_labelled_and_legible(tmp_path):
@@ -13,7 +13,7 @@ def test_views_png_is_labelled_and_legible(tmp_path):
     views = (0, 6, 12)
     reconstruct("sphere", tmp_path, target_settings=TargetSettings(extent=1.0, mesh_resolution=32),
                 schedule=Schedule(resolutions=[8]), optim=OptimSettings(max_passes=1),
-                evaluation=EvalSettings(samples=200, views=views), progress=False)
+                evaluation=ScoringSettings(samples=200, views=views), progress=False)
     picture = np.asarray(Image.open(tmp_path / "views.png"))
     assert picture.shape[0] > 3 * 96 + 10 and picture.shape[1] > len(views) * 96 + 40  # legible tiles and labels
     dark = picture.max(axis=-1) < 128
@@ -32,5 +32,5 @@ def test_a_rerun_removes_what_a_killed_write_left(tmp_path):
     mine.write_text("mine")
     reconstruct("sphere", tmp_path, target_settings=TargetSettings(extent=1.0, mesh_resolution=32),
                 schedule=Schedule(resolutions=[8]), optim=OptimSettings(max_passes=1),
-                evaluation=EvalSettings(samples=200, views=(0,)), progress=False)
+                evaluation=ScoringSettings(samples=200, views=(0,)), progress=False)
     assert not left.exists() and mine.read_text() == "mine"

@@ -132,7 +132,7 @@ def test_toy_run_writes_table_pictures_and_reuses_runs(tmp_path, monkeypatch):
     def no_rerun(*args, **kwargs):
         raise AssertionError("a finished run must be reused")
 
-    monkeypatch.setattr(module, "run_mvr", no_rerun)
+    monkeypatch.setattr(module, "reconstruct_with_overrides", no_rerun)
     module.main(argv)
     again = json.loads((out / "results.json").read_text())["rows"]
     assert [r["hausdorff_rel"] for r in again] == [r["hausdorff_rel"] for r in rows]

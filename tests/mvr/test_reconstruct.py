@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from mvr import (EvalSettings, GridSettings, NoiseSettings, OptimSettings, Schedule, TargetSettings,
+from mvr import (GridSettings, NoiseSettings, OptimSettings, Schedule, ScoringSettings, TargetSettings,
                  configure_runtime, reconstruct)
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -30,7 +30,7 @@ def test_sphere_of_another_radius_converges(tmp_path):
         target_settings=TargetSettings(extent=1.0, mesh_resolution=64),
         schedule=Schedule(resolutions=[8, 16]),
         optim=OptimSettings(max_passes=3),
-        evaluation=EvalSettings(samples=5000), progress=False)
+        evaluation=ScoringSettings(samples=5000), progress=False)
     m = result.metrics
     print({k: m[k] for k in ("hausdorff_rel", "chamfer_rel", "seconds")})
     radii = np.linalg.norm(result.mesh.vertices, axis=1)
@@ -57,7 +57,7 @@ def test_torus_converges_with_its_hole(tmp_path):
         target_settings=TargetSettings(mesh_resolution=96),
         schedule=Schedule(resolutions=[8, 16, 24]),
         optim=OptimSettings(max_passes=4),
-        evaluation=EvalSettings(samples=5000), progress=False)
+        evaluation=ScoringSettings(samples=5000), progress=False)
     m = result.metrics
     print({k: m[k] for k in ("hausdorff_rel", "chamfer_rel", "seconds")})
     assert m["mesh_genus"] == 1 and m["mesh_components"] == 1
@@ -68,7 +68,7 @@ def test_torus_converges_with_its_hole(tmp_path):
 def test_resume_and_settings_guard(tmp_path):
     kwargs = dict(target_settings=TargetSettings(extent=1.0, mesh_resolution=48),
                   schedule=Schedule(resolutions=[8, 12]), optim=OptimSettings(max_passes=1),
-                  evaluation=EvalSettings(samples=500), progress=False)
+                  evaluation=ScoringSettings(samples=500), progress=False)
     first = reconstruct("sphere", tmp_path, **kwargs)
     again = reconstruct("sphere", tmp_path, **kwargs)
     assert again.metrics["resumed_from_level"] == 2  # both levels were already done
@@ -79,7 +79,7 @@ def test_resume_and_settings_guard(tmp_path):
     with pytest.raises(ValueError, match="other settings"):
         reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.1), **kwargs)
     # Evaluation settings do not shape the fit: a rerun with more samples resumes.
-    more = reconstruct("sphere", tmp_path, **{**kwargs, "evaluation": EvalSettings(samples=800)})
+    more = reconstruct("sphere", tmp_path, **{**kwargs, "evaluation": ScoringSettings(samples=800)})
     assert more.metrics["resumed_from_level"] == 2 and more.metrics["samples"] == 800
     fresh = reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.1), resume=False, **kwargs)
     assert fresh.metrics["resumed_from_level"] is None
@@ -92,7 +92,7 @@ def test_noise_options_run(tmp_path):
     result = reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.17, camera_std=0.05),
                          target_settings=TargetSettings(extent=1.0, mesh_resolution=48),
                          schedule=Schedule(resolutions=[8]), optim=OptimSettings(max_passes=1),
-                         evaluation=EvalSettings(samples=500), progress=False)
+                         evaluation=ScoringSettings(samples=500), progress=False)
     assert result.metrics["hausdorff_rel"] is not None
 
 

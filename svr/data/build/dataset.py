@@ -2,7 +2,7 @@
 split), the per-object work in parallel processes (``build_object``: load, render, voxelise; a
 mesh that fails becomes a skipped manifest row with a one-line reason), each object's result
 written atomically into ``<out>/.build/objects`` so that a killed build continues where it stopped,
-then the packing into the files ``svr.data.nmr`` reads (``{cid}_{split}_images.npz`` /
+then the packing into the files ``svr.nmr.format`` reads (``{cid}_{split}_images.npz`` /
 ``_voxels.npz`` with their memory-mappable ``.npy`` copies, ``metadata.json``) and ``manifest.csv``,
 one row per mesh. The same input and settings give the same bytes, however the work was split,
 interrupted or ordered.
@@ -24,18 +24,18 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from sdfcommon.numerics.raycast import EmbreeCaster
 from sdfcommon.tooling.outputs import (atomic_path, atomic_write, remove_stale_temporaries, write_csv, write_json,
                                        write_npz)
 from sdfcommon.tooling.processes import default_workers, map_unordered
 from svr.data.build.layouts import MeshObject, assign_splits, find_objects
 from svr.data.build.meshes import LoadedMesh, MeshError, MeshStatistics, analyse_mesh, load_mesh
-from svr.data.build.raycast import RayCaster
 from svr.data.build.rendering import render_mesh
 from svr.data.build.settings import BuildSettings
 from svr.data.build.voxels import VoxelResult, face_normals, solid_voxels
-from svr.data.nmr import SPLITS, nmr_file
 from svr.data.procedural.appearance import NMR_LIGHTING
-from svr.evaluation.voxels import voxels_to_sdf
+from svr.nmr.format import SPLITS, nmr_file
+from svr.nmr.voxels import voxels_to_sdf
 
 # Bump when the renders, voxels or file contents change: part of the plan a resumed build matches.
 BUILDER_VERSION = 1
@@ -91,7 +91,7 @@ def build_mesh(mesh: LoadedMesh, settings: BuildSettings) -> tuple[MeshStatistic
         MeshError when no camera sees the mesh.
     """
     stats, oriented = analyse_mesh(mesh.vertices, mesh.faces)
-    caster = RayCaster(mesh.vertices, mesh.faces)
+    caster = EmbreeCaster(mesh.vertices, mesh.faces)
     normals = face_normals(mesh.vertices, mesh.faces)
     images = render_mesh(mesh, caster, normals, settings.image_size, settings.supersample, settings.views,
                          settings.distance, settings.elevation, NMR_LIGHTING)

@@ -1,4 +1,4 @@
-"""NMR-style renders of a loaded mesh by ray casting (``RayCaster``): the NMR cameras
+"""NMR-style renders of a loaded mesh by ray casting (``sdfcommon.numerics.raycast``): the NMR cameras
 (``renderer.Cameras.nmr``: elevation, distance and a 30 degree field of view, azimuth
 ``-360 k / V`` for view k), S x S rays per pixel through the centres of an S x S sub-pixel grid,
 each hit shaded flat (its face's normal, turned towards the camera: both sides of a face are lit,
@@ -14,8 +14,8 @@ import numpy as np
 import torch
 
 import renderer
+from sdfcommon.numerics.raycast import RayCaster
 from svr.data.build.meshes import LoadedMesh
-from svr.data.build.raycast import RayCaster
 from svr.data.procedural.appearance import NMR_LIGHTING, Lighting
 
 
@@ -64,7 +64,7 @@ def render_mesh(mesh: LoadedMesh, caster: RayCaster, normals: np.ndarray, image_
     v, hs, ws = dirs.shape[:3]
     d = dirs.reshape(-1, 3)
     hits = caster.first_hits(np.repeat(eyes, hs * ws, axis=0), d)
-    hit = np.nonzero(hits.face >= 0)[0]
+    hit = np.nonzero(hits.hit)[0]
     face = hits.face[hit]
     back = np.einsum("ij,ij->i", normals[face], d[hit]) > 0  # seen from behind: lit on that side
     rgb = np.ones((len(d), 3), dtype=np.float32)
@@ -78,7 +78,8 @@ def render_mesh(mesh: LoadedMesh, caster: RayCaster, normals: np.ndarray, image_
     if not plain.all():
         tex = ~plain
         n = normals[face[tex]] * np.where(back[tex], -1.0, 1.0)[:, None]
-        rgb[hit[tex]] = lighting.shade(n, _albedo(mesh, face[tex], hits.u[hit[tex]], hits.v[hit[tex]]))
+        rgb[hit[tex]] = lighting.shade(n, _albedo(mesh, face[tex], hits.barycentric[hit[tex], 1],
+                                                       hits.barycentric[hit[tex], 2]))
     s = supersample
     cover = np.zeros((len(d), 1), dtype=np.float32)
     cover[hit] = 1.0

@@ -7,7 +7,7 @@ before a centre give the winding number seen from one end of the line, those aft
 from the other end, so each centre gets 26 estimates at the cost of a few thousand rays. Each
 estimate, clipped to [0, 1] (a doubled shell counts once, a flipped face cannot make a centre
 "negatively" inside), votes; ``solid_voxels`` keeps the centres with at least half the votes and
-unites them with the benchmark's surface voxels (``svr.evaluation.voxels.mesh_surface_voxels``), as
+unites them with the benchmark's surface voxels (``svr.nmr.voxels.mesh_surface_voxels``), as
 the benchmark's protocol includes the surface. A hole is seen only by the rays that pass through it,
 a flipped face only by the rays that cross it, so a few wrong votes do not change the result. The
 fraction of votes that disagree with the decision, over the voxels off the surface that got any
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from svr.data.build.raycast import RayCaster
-from svr.evaluation.voxels import mesh_surface_voxels, xyz_to_nmr_voxels
+from sdfcommon.numerics.raycast import RayCaster
+from svr.nmr.voxels import mesh_surface_voxels, xyz_to_nmr_voxels
 
 AXES = ((1, 0, 0), (0, 1, 0), (0, 0, 1))
 FACE_DIAGONALS = ((1, 1, 0), (1, -1, 0), (1, 0, 1), (1, 0, -1), (0, 1, 1), (0, 1, -1))

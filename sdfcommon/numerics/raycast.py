@@ -1,29 +1,34 @@
-"""Ray casting against triangle meshes, the first hit of each ray, which makes the target images of
-multi-view reconstruction from the target mesh itself, never from our SDF renderer.
-``mesh_caster`` picks ``EmbreeCaster`` (Intel Embree through trimesh, ``trimesh.ray.ray_pyembree``,
-PyPI ``embreex`` with wheels for x86_64: the well-kept library and the fastest here, timed in
-docs/mvr_real_scans.md) wherever ``embreex`` imports, and otherwise ``TriangleGrid``, this
-project's own numba caster, kept only as the fallback where ``embreex`` does not install (e.g.
-aarch64): a uniform grid of cells over the mesh (3D DDA, Amanatides & Woo) whose binned triangles
-are tested by Moller-Trumbore (two-sided), one ray per numba ``prange`` iteration. trimesh's
-pure-Python intersector is no fallback: it ran out of memory on 26 x 40^2 rays against a
-75k-triangle scan (the 26-view rig casts about 10^6 rays). ``tests/mvr/test_raycast.py`` checks
-both casters against trimesh's reference intersector and each other.
+"""Ray casting against triangle meshes, for both applications: mvr's target images and error
+pictures (first hits, shaded by barycentric normals) and svr's mesh-to-NMR builder (first hits for
+the renders, every hit along a ray for the voxels' winding votes). ``RayCaster`` is the one
+interface: each backend answers ``first_hits`` (face, barycentric weights, distance: ``RayHits``)
+and ``all_hits`` is built on it once. ``EmbreeCaster`` is the backend (Intel Embree through the
+``embreex`` package, wheels for x86_64: the well-kept library and the fastest here, timed in
+docs/mvr_real_scans.md); ``TriangleGrid``, this project's own numba caster, is the second backend,
+kept only as the fallback where ``embreex`` does not install (e.g. aarch64): a uniform grid of
+cells over the mesh (3D DDA, Amanatides & Woo) whose binned triangles are tested by Moller-Trumbore
+(two-sided), one ray per numba ``prange`` iteration. ``mesh_caster`` picks Embree wherever it
+imports. trimesh's pure-Python intersector is no fallback: it ran out of memory on 26 x 40^2 rays
+against a 75k-triangle scan (the 26-view rig casts about 10^6 rays). ``tests/sdfcommon/test_raycast.py``
+checks both backends against trimesh's reference intersector and each other.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Union
 
 import numba
 import numpy as np
-import trimesh
 
 from sdfcommon.tooling.checks import check_shape
 
 # Relative slack when binning triangles into cells and accepting hits at cell faces, so a hit
 # exactly on a cell boundary is never lost to rounding.
 _EPS = 1e-9
+# How far past a hit the next search along the same ray starts (world units, normalised meshes):
+# above float32 rounding at unit scale, below any feature the 32^3 or 64^3 grids resolve.
+STEP_PAST_HIT = 1e-5
+# At most this many hits are collected along one ray (a ray through more layers stops there).
+MAX_HITS = 256
 
 
 @dataclass(frozen=True)
@@ -43,8 +48,74 @@ class RayHits:
     barycentric: np.ndarray
 
 
-class TriangleGrid:
-    """Triangles binned into a uniform grid of cells over their bounding box, ready for ray casting.
+class RayCaster:
+    """A triangle mesh ready for ray queries; a backend implements ``first_hits``."""
+
+    def first_hits(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+        """The nearest hit of each ray (origins (R, 3), unit directions (R, 3), world)."""
+        raise NotImplementedError
+
+    def all_hits(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every hit along each ray (origins (R, 3), unit directions (R, 3), world): ``first_hits``
+        again from ``STEP_PAST_HIT`` past each hit, at most ``MAX_HITS`` per ray (a surface met
+        twice at one point counts once).
+
+        Returns:
+            ray: (K,) int64 ray index of each hit; face: (K,) int64 triangle; t: (K,) float64
+            distance from the ray's origin along its unit direction. Hits are sorted by ray, then t.
+        """
+        o, d = _checked_rays(origins, directions)
+        live = np.arange(len(o))
+        start = np.zeros(len(o))
+        rays, faces, ts = [], [], []
+        for _ in range(MAX_HITS):
+            if not len(live):
+                break
+            hits = self.first_hits(o[live] + start[live, None] * d[live], d[live])
+            ok = hits.hit
+            live, t = live[ok], start[live[ok]] + hits.t[ok]
+            rays.append(live)
+            faces.append(hits.face[ok])
+            ts.append(t)
+            start[live] = t + STEP_PAST_HIT
+        if not rays:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+        ray, face, t = np.concatenate(rays), np.concatenate(faces), np.concatenate(ts)
+        order = np.lexsort((t, ray))
+        return ray[order].astype(np.int64), face[order], t[order]
+
+
+class EmbreeCaster(RayCaster):
+    """Embree's BVH of one triangle mesh (needs the ``embreex`` package).
+
+    Embree intersects in single precision (float32 rays, vertices, distances and weights, widened
+    to ``RayHits``' float64): hit distances agree with the double-precision ``TriangleGrid`` to
+    about 1e-6 of the scene's size, far below a pixel's footprint or a voxel.
+
+    Args:
+        vertices: (V, 3) float array (world); faces: (F, 3) int array of vertex indices.
+    Raises:
+        ImportError: ``embreex`` is not installed (see ``embree_available``).
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
+        from embreex import mesh_construction, rtcore_scene  # heavy and optional: x86_64 wheels only
+
+        v, f = _checked_mesh(vertices, faces)
+        self._scene = rtcore_scene.EmbreeScene()
+        mesh_construction.TriangleMesh(self._scene, v.astype(np.float32), f.astype(np.int32))
+
+    def first_hits(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+        """The nearest hit of each ray (origins (R, 3), unit directions (R, 3), world)."""
+        o, d = _checked_rays(origins, directions)
+        out = self._scene.run(o.astype(np.float32), d.astype(np.float32), output=1)
+        face = np.where(out["geomID"] >= 0, out["primID"], -1).astype(np.int64)
+        return _ray_hits(face, out["tfar"], out["u"], out["v"])
+
+
+class TriangleGrid(RayCaster):
+    """Triangles binned into a uniform grid of cells over their bounding box, ready for ray casting
+    in double precision (the fallback backend where Embree does not install).
 
     Args:
         vertices: (V, 3) float array (world).
@@ -71,65 +142,26 @@ class TriangleGrid:
         self.cell = span / dims
         self.offsets, self.items = _bin_triangles(self.triangles, self.lo, self.cell, dims)
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
-        """First hits of rays (origins (R, 3), unit directions (R, 3), world) with the triangles."""
+    def first_hits(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
+        """The nearest hit of each ray (origins (R, 3), unit directions (R, 3), world)."""
         o, d = _checked_rays(origins, directions)
         t, face, u, w = _cast(o, d, self.triangles, self.lo, self.cell, self.dims, self.offsets, self.items)
-        hit = face >= 0
-        bary = np.zeros((len(o), 3))
-        bary[hit, 0] = 1.0 - u[hit] - w[hit]
-        bary[hit, 1] = u[hit]
-        bary[hit, 2] = w[hit]
-        return RayHits(hit=hit, t=t, face=face, barycentric=bary)
-
-
-class EmbreeCaster:
-    """First hits by Intel Embree (``trimesh.ray.ray_pyembree``; needs the ``embreex`` package).
-
-    Embree intersects in single precision: hit distances agree with the double-precision
-    ``TriangleGrid`` to about 1e-6 of the scene's size, far below a pixel's footprint.
-
-    Args:
-        vertices: (V, 3) float array (world); faces: (F, 3) int array of vertex indices.
-    Raises:
-        ImportError: ``embreex`` is not installed (see ``embree_available``).
-    """
-
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray):
-        from trimesh.ray.ray_pyembree import RayMeshIntersector  # optional: ImportError without embreex
-
-        v, f = _checked_mesh(vertices, faces)
-        self.mesh = trimesh.Trimesh(vertices=v, faces=f, process=False)
-        self._intersector = RayMeshIntersector(self.mesh)
-
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> RayHits:
-        """First hits of rays (origins (R, 3), unit directions (R, 3), world) with the triangles."""
-        o, d = _checked_rays(origins, directions)
-        face_idx, ray_idx, points = self._intersector.intersects_id(
-            o, d, multiple_hits=False, return_locations=True)
-        t = np.full(len(o), np.inf)
-        face = np.full(len(o), -1, dtype=np.int64)
-        bary = np.zeros((len(o), 3))
-        if len(ray_idx):
-            t[ray_idx] = ((points - o[ray_idx]) * d[ray_idx]).sum(axis=1)
-            face[ray_idx] = face_idx
-            bary[ray_idx] = trimesh.triangles.points_to_barycentric(self.mesh.triangles[face_idx], points)
-        return RayHits(hit=face >= 0, t=t, face=face, barycentric=bary)
+        return _ray_hits(face, t, u, w)
 
 
 def embree_available() -> bool:
-    """Whether Embree can be used (``embreex`` imports and trimesh finds it)."""
+    """Whether Embree can be used (``embreex`` imports)."""
     try:
-        from trimesh.ray import ray_pyembree  # noqa: F401  # optional: embreex
+        from embreex import rtcore_scene  # noqa: F401  # optional: x86_64 wheels only
     except ImportError:
         return False
-    return bool(trimesh.ray.has_embree)
+    return True
 
 
 CASTERS = ("auto", "embree", "grid")
 
 
-def mesh_caster(vertices: np.ndarray, faces: np.ndarray, engine: str = "auto") -> Union[EmbreeCaster, TriangleGrid]:
+def mesh_caster(vertices: np.ndarray, faces: np.ndarray, engine: str = "auto") -> RayCaster:
     """A ray caster for a triangle mesh: ``"embree"`` (EmbreeCaster), ``"grid"`` (this project's
     numba TriangleGrid) or ``"auto"``: Embree where it imports, else the grid."""
     if engine not in CASTERS:
@@ -137,6 +169,18 @@ def mesh_caster(vertices: np.ndarray, faces: np.ndarray, engine: str = "auto") -
     if engine == "embree" or (engine == "auto" and embree_available()):
         return EmbreeCaster(vertices, faces)
     return TriangleGrid(vertices, faces)
+
+
+def _ray_hits(face: np.ndarray, t: np.ndarray, u: np.ndarray, w: np.ndarray) -> RayHits:
+    """``RayHits`` from a backend's (R,) face (-1: no hit), distance and weights of the face's 2nd
+    and 3rd vertex (any float dtype, widened to float64)."""
+    hit = face >= 0
+    u, w = np.asarray(u, dtype=np.float64), np.asarray(w, dtype=np.float64)
+    bary = np.zeros((len(face), 3))
+    bary[hit, 0] = 1.0 - u[hit] - w[hit]
+    bary[hit, 1] = u[hit]
+    bary[hit, 2] = w[hit]
+    return RayHits(hit=hit, t=np.where(hit, np.asarray(t, dtype=np.float64), np.inf), face=face, barycentric=bary)
 
 
 def _checked_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -287,3 +331,7 @@ def _cast(o, d, tris, lo, cell, dims, offsets, items):
             u_out[ray] = best_u
             v_out[ray] = best_v
     return t_out, face_out, u_out, v_out
+
+
+__all__ = ["RayCaster", "EmbreeCaster", "TriangleGrid", "RayHits", "mesh_caster", "embree_available", "CASTERS",
+           "STEP_PAST_HIT", "MAX_HITS"]
