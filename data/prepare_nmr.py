@@ -17,7 +17,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from svr.data.nmr import SPLITS, prepare_nmr  # noqa: E402
+from svr.nmr.format import SPLITS, prepare_nmr
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,7 +1,7 @@
 """The CPU demo, ``python -m svr.demo`` (what ``make demo`` runs; configs/demo.yaml): trains
 ``experiment=demo`` from scratch on the procedural data into ``<out>/train`` (a stopped run resumes
 with its saved config when the command runs again, a finished one is only evaluated again), then
-calibrates its checkpoints on the validation split (``svr.evaluation.calibration``; once, kept in
+calibrates its checkpoints on the validation split (``svr.evaluation.calibration_search``; once, kept in
 the checkpoints) and scores it by the benchmark protocol with the coarse stage and every baseline
 as extra rows, and writes into ``out``: the evaluation's files (``table.md``, ``table.csv``,
 ``iou.json``, ``per_object.csv``, ``per_image.csv``), ``timings.json`` (training seconds over
@@ -25,7 +25,7 @@ from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.commands import hydra_entry
 from sdfcommon.tooling.outputs import write_json, write_text
 from sdfcommon.tooling.settings import settings_record
-from svr.evaluation.run_scores import score_run
+from svr.scoring import score_run
 from svr.training.resume import continued_settings
 from svr.training.run_folder import RunFolder
 from svr.training.settings import TrainSettings
@@ -79,7 +79,24 @@ DEMO_KEYS = tuple(f.name for f in dataclasses.fields(DemoSettings) if f.name not
 QUIET_OVERRIDES = ("data.progress=false", "trainer.enable_progress_bar=false", "callbacks.progress_bar=null")
 
 
-def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> dict:
+@dataclass(frozen=True)
+class DemoResult:
+    """What the demo made.
+
+    Attributes:
+        table: the markdown IoU table it printed.
+        iou: ``iou.json`` as written (the evaluation, the calibration searches, the steps).
+        files: every file written, as strings.
+        timings: ``timings.json`` as written (seconds, whether the run resumed, the steps).
+    """
+
+    table: str
+    iou: dict
+    files: list[str]
+    timings: dict
+
+
+def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> DemoResult:
     """The demo (see the module docstring).
 
     Args:
@@ -87,7 +104,7 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
         overrides: the command line's overrides (default: hydra's); a resumed run may change only
             what ``svr.training.resume.RESUMABLE_KEYS`` allows of those naming training settings.
     Returns:
-        {"table", "iou", "files"} and the timings.
+        the table, iou.json, the files and the timings.
     """
     if overrides is None:
         overrides = list(HydraConfig.get().overrides.task) if HydraConfig.initialized() else []
@@ -124,23 +141,18 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> di
             raise
         train_wall = time.time() - start
     t_eval = time.time()
-    result = score_run(train_settings, folder, out_dir, progress=not settings.quiet,
+    scores = score_run(train_settings, folder, out_dir, progress=not settings.quiet,
                        protocol_workers=settings.protocol_workers, calibrate=settings.calibrate,
                        recalibrate=settings.recalibrate)
     steps = folder.steps(schedule, {s: train_settings.stage.of(s).max_steps for s in schedule})
-    train_seconds = folder.train_seconds(schedule)
-    timings = {"train_seconds": train_seconds, "train_wall_seconds_this_command": train_wall,
+    report = scores.write(out_dir, fields={"steps": steps})
+    timings = {"train_seconds": folder.train_seconds(schedule), "train_wall_seconds_this_command": train_wall,
                "eval_seconds": time.time() - t_eval, "total_seconds_this_command": time.time() - start,
                "resumed": resume is not None, "steps": steps}
-    result["files"].append(str(write_json(out_dir / "timings.json", timings)))
-    iou_json = out_dir / "iou.json"
-    # "calibration" (the evaluation's) describes what was applied; the searches' records go beside it
-    write_json(iou_json, {**json.loads(iou_json.read_text()), "steps": steps,
-                          "calibration_search": result["calibration"]})
-    result["iou"]["steps"] = steps
-    result["iou"]["calibration_search"] = result["calibration"]
-    _print_summary(result, timings, out_dir)
-    return {**result, **timings}
+    files = [*report.values(), *scores.pictures, write_json(out_dir / "timings.json", timings)]
+    result = DemoResult(scores.table, json.loads(report["json"].read_text()), [str(f) for f in files], timings)
+    _print_summary(result, out_dir)
+    return result
 
 
 def _experiment() -> str:
@@ -149,9 +161,10 @@ def _experiment() -> str:
     return f"experiment={choices.get('experiment') or 'demo'}"
 
 
-def _print_summary(result: dict, timings: dict, out_dir: Path) -> None:
+def _print_summary(result: DemoResult, out_dir: Path) -> None:
+    timings = result.timings
     print()
-    print(result["table"])
+    print(result.table)
     if timings["train_seconds"] is not None:
         print(f"training {timings['train_seconds'] / 60:.1f} min (the whole run"
               f"{', over resumes' if timings['resumed'] else ''}), evaluation {timings['eval_seconds'] / 60:.1f} min")
@@ -162,7 +175,7 @@ def _print_summary(result: dict, timings: dict, out_dir: Path) -> None:
         print(f"warning: the time cap stopped {', '.join(short)} early: this run trained less than its "
               f"schedule, so its table differs from the documented one (docs/demo.md, README)")
     print(f"outputs in {out_dir}:")
-    for f in result["files"]:
+    for f in result.files:
         print(f"  {f}")
 
 

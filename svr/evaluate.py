@@ -1,6 +1,6 @@
 """The evaluation command, ``python -m svr.evaluate ckpt_path=X.ckpt`` / ``sdfdiff-evaluate``
 (configs/eval.yaml, whose comments show the command lines): a checkpoint's benchmark 3D IoU per
-category in the paper's layout (``svr.evaluation.benchmark``), printed and written into
+category in the paper's layout (``svr.evaluation.protocol``), printed and written into
 ``output_dir``, else hydra's run folder ``<paths.output_dir>/eval/<time>`` (``table.md``,
 ``table.csv``, ``iou.json``, ``per_object.csv``, ``per_image.csv``: ``svr.evaluation.tables``). ``run``
 loads the model, prepares the split's data (rank 0 first) and evaluates; started several times by
@@ -21,7 +21,7 @@ from omegaconf import OmegaConf
 from sdfcommon.tooling.commands import hydra_entry
 from sdfcommon.tooling.outputs import ensure_output_dir
 from svr.distributed import RankInfo, barrier, launch_rank_is_zero, local_rank, process_group_from_environment
-from svr.evaluation.benchmark import add_baselines, describe_data, evaluate, prepare_split
+from svr.evaluation.protocol import add_baselines, evaluate
 from svr.evaluation.settings import EvalSettings
 from svr.evaluation.tables import EvaluationResult, format_iou, format_table, write_report
 from svr.inference.prediction import load_model
@@ -68,9 +68,9 @@ def _evaluate_checkpoint(settings: EvalSettings, ranks: RankInfo) -> EvaluationR
     say(f"evaluating {model.checkpoint} ({model.stage} stage, {model.output_name} output) on {model.device}"
         + (f" and {ranks.world_size - 1} more processes" if ranks.world_size > 1 else "")
         + (f"; calibration: {model.calibration.describe()}" if model.calibration is not None else ""))
-    say(f"data: {describe_data(datamodule)}; split: {settings.split}")
+    say(f"data: {datamodule.describe()}; split: {settings.split}")
     if ranks.is_zero:
-        prepare_split(datamodule, settings.split, progress=settings.progress)
+        datamodule.prepare_split(settings.split, progress=settings.progress)
     barrier()  # the other processes read the split once rank 0 has made it
     result = evaluate(model, datamodule, settings.split, batch_size=settings.batch_size,
                       distributed=ranks.world_size > 1, views=settings.views,

@@ -25,9 +25,9 @@ import renderer
 from sdfcommon.numerics.regularisers import band_regularisers, eikonal_loss, laplacian_loss, narrow_band
 from sdfcommon.tooling.checks import check_float, check_int, check_positive, check_shape
 
-from svr.evaluation.metrics import PROTOCOL_LIKE_LEVEL
-from svr.evaluation.voxels import sdf_at_voxel_centres
-from svr.view_renders import render_views
+from svr.nmr.metrics import PROTOCOL_LIKE_LEVEL
+from svr.nmr.views import render_views
+from svr.nmr.voxels import sdf_at_voxel_centres
 
 SILHOUETTE_KINDS = ("mse", "iou")
 VOXEL_KINDS = ("distance", "bce")

@@ -4,7 +4,8 @@ the package import graph is built and printed (``pytest -s tests/test_layering.p
 the test fails when a package imports one above it or beside it, when two packages import each
 other, when code outside ``renderer/`` reaches into a renderer submodule instead of the renderer's
 public API, or when files of one package import each other in a cycle (the file graph, searched by
-Tarjan's algorithm).
+Tarjan's algorithm). Inside ``svr/`` its sub-packages are layered too (``SVR_LAYERS``): a
+sub-package imports only those of lower layers.
 """
 from __future__ import annotations
 
@@ -23,6 +24,20 @@ ALLOWED = {
     "mvr": {"renderer", "sdfcommon"},
     "benchmarks": {"renderer", "sdfcommon", "svr", "mvr"},
 }
+# svr's sub-packages and top-level modules, lowest first: the benchmark's own definitions (NMR format,
+# voxel frame, IoU) and the process group; the data; the losses; the networks (with the stage names
+# and checkpoint key their checkpoints carry); loading and running them; training and evaluation; the
+# demo's scoring workflow; the commands. Each may import only what lies in the layers before its own.
+SVR_LAYERS = (
+    ("nmr", "distributed"),
+    ("data",),
+    ("losses",),
+    ("models",),
+    ("inference",),
+    ("training", "evaluation"),
+    ("scoring",),
+    ("train", "evaluate", "infer", "demo"),
+)
 # The renderer is a library of torch, numpy and numba: never the applications' frameworks.
 RENDERER_NEVER = ("hydra", "omegaconf", "pytorch_lightning", "lightning")
 
@@ -139,6 +154,36 @@ def violations(root: Path = REPO) -> list[str]:
     return out
 
 
+def _svr_unit(module: str) -> Optional[str]:
+    """The sub-package or top-level module of svr that ``module`` belongs to (None for ``svr`` itself)."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "svr" and len(parts) > 1 else None
+
+
+def svr_violations(root: Path = REPO) -> list[str]:
+    """Imports inside ``svr/`` against ``SVR_LAYERS``, one line each; a file of svr outside every
+    layer is named too, so a new sub-package must be given its place."""
+    layer = {unit: i for i, units in enumerate(SVR_LAYERS) for unit in units}
+    out = []
+    for path in sorted((root / "svr").rglob("*.py")):
+        module = _module_name(path, root)
+        unit = _svr_unit(module)
+        if unit is None:
+            continue
+        if unit not in layer:
+            out.append(f"{path.relative_to(root).as_posix()}: svr.{unit} is in no layer of SVR_LAYERS")
+            continue
+        for imp in imports_of(path, root):
+            target = _svr_unit(imp.module)
+            if imp.attribute or target is None or target == unit:
+                continue
+            if target not in layer or layer[target] >= layer[unit]:
+                allowed = sorted(u for u, i in layer.items() if i < layer[unit])
+                out.append(f"{imp.file}:{imp.line}: svr.{unit} imports {imp.module} (svr.{unit} may import "
+                           f"{', '.join('svr.' + u for u in allowed) or 'nothing of svr'})")
+    return out
+
+
 def format_graph(graph: dict[str, dict[str, list[Import]]]) -> str:
     lines = ["package import graph (package -> what it imports, with the number of imports):"]
     for package in PACKAGES:
@@ -151,6 +196,38 @@ def test_imports_flow_one_way():
     print("\n" + format_graph(import_graph()))
     found = violations()
     assert not found, "imports against the layering:\n" + "\n".join(found)
+
+
+def test_svr_sub_packages_import_downwards_only():
+    found = svr_violations()
+    assert not found, "imports against svr's layers (SVR_LAYERS):\n" + "\n".join(found)
+
+
+def test_the_svr_check_catches_an_upward_import(tmp_path):
+    """An upward import (the data importing the evaluation), one between the two halves of a layer,
+    one inside a function and a module in no layer are each refused; downward imports pass."""
+    files = {
+        "svr/__init__.py": "",
+        "svr/nmr/__init__.py": "",
+        "svr/nmr/voxels.py": "import numpy\n",
+        "svr/data/__init__.py": "",
+        "svr/data/gen.py": "from svr.nmr.voxels import x\nfrom svr.evaluation.tables import t\n",
+        "svr/models/module.py": "from svr.data import gen\ndef f():\n    from svr.inference import checkpoints\n",
+        "svr/training/stages.py": "from svr.evaluation import protocol\nfrom svr.models import module\n",
+        "svr/evaluation/tables.py": "from svr.inference.prediction import load_model\n",
+        "svr/extras.py": "",
+        "svr/demo.py": "from svr.training.stages import train\nfrom svr.evaluation.tables import t\n",
+    }
+    for rel, text in files.items():
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text(text)
+    found = svr_violations(tmp_path)
+    text = "\n".join(found)
+    assert "svr/data/gen.py:2: svr.data imports svr.evaluation.tables" in text
+    assert "svr/models/module.py:3: svr.models imports svr.inference" in text
+    assert "svr/training/stages.py:1: svr.training imports svr.evaluation" in text
+    assert "svr/extras.py: svr.extras is in no layer of SVR_LAYERS" in text
+    assert len(found) == 4, found  # the downward imports (nmr, data, models, training, inference) pass
 
 
 def test_the_check_catches_each_kind_of_violation(tmp_path):

@@ -1,10 +1,11 @@
-"""Single-view data: the NMR ShapeNet format (``nmr``), the procedural dataset in that format
+"""Single-view data in the NMR ShapeNet format (``svr.nmr``): the torch Datasets over a folder
+(``datasets``), which items the loaders read on each process (``samplers``), the Lightning
+DataModules (``datamodules``), the batch contract (``types``), the procedural dataset in that format
 (``procedural``: its shape categories in ``categories``, built on the analytic CSG shapes of
-``csg``), the Lightning DataModules (``datamodule``) and the batch contract (``types``). The names
-below are loaded on first use (``__getattr__``) for start-up cost: every import of a submodule
-(``svr.data.nmr`` by the evaluation tables, ``svr.data.types`` by the models) runs this file first,
-and importing the DataModules here would load Lightning and the procedural generator into every
-command and worker process that needs only the NMR format.
+``csg``) and the mesh-to-NMR builder (``build``). The names below are loaded on first use
+(``__getattr__``) for start-up cost: every import of a submodule (``svr.data.types`` by the models)
+runs this file first, and importing the DataModules here would load Lightning and the procedural
+generator into every command and worker process that needs only the batch types.
 """
 from __future__ import annotations
 
@@ -12,13 +13,13 @@ import importlib
 
 _EXPORTS = {
     "SVRBatch": "types", "ShadingModel": "types", "collate_batch": "types",
-    "NMRDataset": "nmr", "NMR_CATEGORIES": "nmr", "prepare_nmr": "nmr",
+    "NMRDataset": "datasets",
     "ALL_CATEGORIES": "procedural.categories", "NMR_PROCEDURAL_CATEGORIES": "procedural.categories",
     "ProceduralSettings": "procedural.generator",
     "generate_procedural_dataset": "procedural.generator", "ensure_procedural_dataset": "procedural.generator",
     "make_shape": "procedural.generator", "render_shape": "procedural.generator",
     "voxelize_shape": "procedural.generator",
-    "NMRDataModule": "datamodule", "ProceduralDataModule": "datamodule",
+    "SVRDataModule": "datamodules", "NMRDataModule": "datamodules", "ProceduralDataModule": "datamodules",
 }
 
 __all__ = sorted(_EXPORTS)

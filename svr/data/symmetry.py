@@ -10,7 +10,7 @@ from typing import Optional
 
 import numpy as np
 
-# World axis (x, y, z) -> the NMR voxel array's axis (svr/evaluation/voxels.py: axis 0 = +y, 1 = +x,
+# World axis (x, y, z) -> the NMR voxel array's axis (svr/nmr/voxels.py: axis 0 = +y, 1 = +x,
 # 2 = -z); the voxel centres are symmetric about the grid's middle, so a flip is the world mirror.
 _VOXEL_AXIS = {0: 1, 1: 0, 2: 2}
 AXIS_NAMES = ("x", "y", "z")

@@ -37,7 +37,7 @@ class SVRBatch:
         images: (B, V, 4, 64, 64) float32 RGBA in [0, 1] (alpha = anti-aliased silhouette, RGB on a
             white background after inversion detection); view 0 of each object is the network input.
         view_ids: (B, V) long NMR view indices (0..23), for renderer.Cameras.nmr.
-        voxels: (B, 32, 32, 32) bool solid voxels in the NMR voxel frame (svr/evaluation/voxels.py).
+        voxels: (B, 32, 32, 32) bool solid voxels in the NMR voxel frame (svr/nmr/voxels.py).
         category: (B,) long index into the data module's ``categories`` list.
         object_index: (B,) long index of the object within its category and split.
     """

@@ -1,4 +1,5 @@
-"""Evaluation by the benchmark's protocol: NMR voxels from SDF grids (``voxels``), IoU and tables of
-it (``metrics``, ``tables``), the baselines scored beside a model (``baselines``) and the
-protocol over a split (``benchmark``), and the scores of a finished run as the demo reports them
-(``run_scores``)."""
+"""Evaluation by the benchmark's protocol (its voxel and IoU rules are ``svr.nmr``'s): the protocol
+run over a split (``protocol``), the baselines scored beside a model (``baselines``), the tables of
+the result (``tables``), the calibration searched on the validation split and stored in a
+checkpoint (``calibration_search``; ``svr.inference.calibration`` applies it) and the evaluate
+command's settings (``settings``)."""

@@ -3,14 +3,14 @@ model, since a learnt model's IoU means little alone: these rows bound it on the
 section 5; docs/svr_evaluation.md). ``mean_shape`` is one shape for every input, the training
 objects' mean occupancy thresholded at the level whose protocol voxels fit them best;
 ``category_mean_shape`` is one shape per category, the mean of the category's training signed
-distance grids (``svr.evaluation.voxels.voxels_to_sdf`` of their voxels) at the iso-level that fits
+distance grids (``svr.nmr.voxels.voxels_to_sdf`` of their voxels) at the iso-level that fits
 them best, told the category, which the model is not (an optimistic version of the former);
 ``retrieval`` predicts, for each test image, the ground-truth voxels of the training object whose
 stored silhouette in the same view is most similar to the input's alpha (``retrieve``), the
 camera known as it is to the model and the category not, the bar a learnt model must clear to
 show that it learnt shape rather than looked it up (published on NMR ShapeNet: 0.4766 mean IoU);
 ``oracle`` puts the exact (analytic) shape's SDF, sampled on the model's grid and clipped to the
-object box as predictions are (``svr.evaluation.voxels.clip_to_box``), through the protocol, the
+object box as predictions are (``svr.nmr.voxels.clip_to_box``), through the protocol, the
 ceiling of what a model with that grid can score (procedural data only, since it needs the
 analytic shapes). ``score_baselines`` returns their per-image IoU, aligned with an
 ``svr.evaluation.tables.EvaluationResult``'s images.
@@ -25,8 +25,8 @@ from tqdm.auto import tqdm
 
 from sdfcommon.tooling.checks import check_shape
 from svr.data.procedural.generator import dataset_shape, is_procedural_dataset
-from svr.evaluation.metrics import voxel_iou, voxels_protocol
-from svr.evaluation.voxels import clip_to_box, voxels_to_sdf
+from svr.nmr.metrics import voxel_iou, voxels_protocol
+from svr.nmr.voxels import clip_to_box, voxels_to_sdf
 
 BASELINES: tuple[str, ...] = ("mean_shape", "category_mean_shape", "retrieval", "oracle")
 LABELS: Mapping[str, str] = {
@@ -80,7 +80,7 @@ def _best_shape(candidates: Sequence[torch.Tensor], objects, indices: Sequence[i
 
 def protocol_voxels_of_voxels(voxels) -> torch.Tensor:
     """What the benchmark protocol makes of a voxel shape predicted as an SDF: its signed distance
-    grid (``svr.evaluation.voxels.voxels_to_sdf``) -> marching cubes -> the benchmark's voxelisation.
+    grid (``svr.nmr.voxels.voxels_to_sdf``) -> marching cubes -> the benchmark's voxelisation.
 
     Args:
         voxels: (32, 32, 32) bool (NMR frame).
@@ -100,7 +100,7 @@ def mean_shape(train) -> tuple[torch.Tensor, float]:
     the highest mean IoU over the training objects. Memory: one chunk of voxels at a time.
 
     Args:
-        train: the training split (``svr.data.nmr.NMRDataset``: ``len``, ``voxels(i)``).
+        train: the training split (``svr.data.datasets.NMRDataset``: ``len``, ``voxels(i)``).
     Returns:
         ((32, 32, 32) bool protocol voxels of that shape, the threshold).
     """

@@ -10,8 +10,8 @@ from typing import Optional, Union
 
 from sdfcommon.tooling.checks import check_float, check_int
 from sdfcommon.tooling.settings import Component, PathSettings
-from svr.data.nmr import SPLITS, check_view_ids
 from svr.evaluation.baselines import check_baselines
+from svr.nmr.format import SPLITS, check_view_ids
 
 DISTRIBUTED_MODES = ("auto", True, False)
 

@@ -17,12 +17,11 @@ import numpy as np
 
 from sdfcommon.tooling.checks import check_instance
 from sdfcommon.tooling.outputs import ensure_output_dir, write_csv, write_json, write_text
-from svr.data.nmr import NMR_CATEGORIES, NUM_VIEWS
 from svr.evaluation.baselines import DESCRIPTIONS, LABELS
-from svr.evaluation.metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table
+from svr.nmr.format import NMR_CATEGORIES, NMR_CATEGORY_IDS, NUM_VIEWS
+from svr.nmr.metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table
 
 PathLike = Union[str, os.PathLike]
-NMR_CATEGORY_IDS = frozenset(cid for cid, _ in NMR_CATEGORIES)
 
 
 @dataclass(frozen=True)
@@ -99,7 +98,7 @@ class EvaluationResult:
 
     @property
     def table(self) -> IoUTable:
-        """Per-category IoU of ``output`` and their unweighted mean (``svr.evaluation.metrics.iou_table``)."""
+        """Per-category IoU of ``output`` and their unweighted mean (``svr.nmr.metrics.iou_table``)."""
         return iou_table(self.iou, self.category, self.categories)
 
     @property
@@ -220,7 +219,7 @@ ExtraRows = Optional[Mapping[str, IoUTable]]
 def _check_extra(extra_rows: ExtraRows) -> dict[str, IoUTable]:
     out = dict(extra_rows or {})
     for label, t in out.items():
-        check_instance(t, f"extra_rows[{label!r}]", IoUTable, "a svr.evaluation.metrics.IoUTable")
+        check_instance(t, f"extra_rows[{label!r}]", IoUTable, "a svr.nmr.metrics.IoUTable")
     return out
 
 
@@ -232,7 +231,7 @@ def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
 
     Args:
         extra_rows: more methods scored on the same images (e.g. a demo's baselines): label ->
-            IoUTable (``svr.evaluation.metrics.iou_table``), matched to the columns by category id.
+            IoUTable (``svr.nmr.metrics.iou_table``), matched to the columns by category id.
         label: the main row's label (default "ours (<output>)").
     """
     cols = result.present
@@ -309,11 +308,12 @@ def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: 
 
 
 def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: ExtraRows = None,
-                 label: Optional[str] = None) -> dict[str, Path]:
+                 label: Optional[str] = None, fields: Optional[Mapping[str, Any]] = None) -> dict[str, Path]:
     """Writes ``table.md``, ``table.csv``, ``iou.json``, ``per_object.csv`` (worst first) and
     ``per_image.csv`` into ``output_dir``, each atomically (``sdfcommon.tooling.outputs``: temp file + ``os.replace``;
     non-finite numbers become JSON null). ``extra_rows`` (see ``table_rows``) also go into the JSON
-    under ``"extra"``.
+    under ``"extra"``; ``fields`` are more top-level entries of the JSON (plain values; a name of the
+    result's own is refused).
 
     Returns:
         {kind: path}. Raises ValueError naming ``output_dir`` when it cannot be written.
@@ -325,6 +325,10 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
     if extra:
         summary["extra"] = {name: {"categories": {r.name: r.iou for r in t.rows if r.images > 0}, "mean": t.mean}
                             for name, t in extra.items()}
+    for name, value in (fields or {}).items():
+        if name in summary:
+            raise ValueError(f"fields: {name!r} is an entry of the result itself")
+        summary[name] = value
     files = {
         "markdown": write_text(folder / "table.md", format_table(result, extra_rows, label)),
         "csv": write_csv(folder / "table.csv", [dict(zip(header, r)) for r in rows], header),

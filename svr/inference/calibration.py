@@ -1,5 +1,5 @@
 """What a checkpoint's predictions go through after the network, chosen once on the validation split
-(``svr.evaluation.calibration``) and kept in the checkpoint: carving by the input silhouette and a
+(``svr.evaluation.calibration_search``) and kept in the checkpoint: carving by the input silhouette and a
 shift of the surface level. A network trained on silhouettes predicts shapes near the visual hull
 of its supervised views, so it over-fills (on the demo's test split the median predicted volume was
 1.75x the truth) and puts some material where the input view shows background. Carving removes

@@ -10,18 +10,8 @@ from typing import Any
 
 import torch
 
+from svr.models.checkpoint_layout import CHECKPOINT_KEY, STAGES
 from svr.models.network import SVRNet
-
-STAGES = ("coarse", "refine", "joint")
-CHECKPOINT_KEY = "sdfdiff"
-
-
-def check_stage(stage: str) -> str:
-    """``stage``, or a ValueError unless it is one of ``STAGES``."""
-    if stage not in STAGES:
-        raise ValueError(f"stage must be one of {STAGES}, got {stage!r}")
-    return stage
-
 
 def load_checkpoint(path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
     """Loads one of our Lightning checkpoints (tensors and plain values only) and checks it is ours.
@@ -92,4 +82,4 @@ def load_network_weights(net: SVRNet, checkpoint: dict[str, Any], path) -> None:
         raise ValueError(f"{path}: its network does not match the model ({err})") from None
 
 
-__all__ = ["STAGES", "CHECKPOINT_KEY", "check_stage", "load_checkpoint", "load_network", "load_network_weights"]
+__all__ = ["load_checkpoint", "load_network", "load_network_weights"]

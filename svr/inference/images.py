@@ -12,7 +12,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
-from svr.data.nmr import images_to_float
+from svr.nmr.format import images_to_float
 
 PathLike = Union[str, os.PathLike]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
@@ -67,7 +67,7 @@ def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int 
     file (any mode, read as grey: white = object), which replaces the alpha channel. A non-square
     image is padded to a square (transparent, white); any other size is resized to
     ``image_size`` (area averaging when shrinking), with a warning. The result is converted like the
-    datasets' images (``svr.data.nmr.images_to_float``: RGB on white).
+    datasets' images (``svr.nmr.format.images_to_float``: RGB on white).
 
     The silhouette must be an object on a background (``check_silhouette``): a fully transparent
     image or an inverted mask is refused.

@@ -2,7 +2,7 @@
 reads a checkpoint (``svr.inference.checkpoints``) onto a device as a ``LoadedModel``; ``predict_sdf``
 runs a LoadedModel on images in batches without gradients, applies the checkpoint's calibration
 (``svr.inference.calibration``: silhouette carving and a level, chosen on the validation split) and
-closes the shapes at the normalisation cube (``svr.evaluation.voxels.clip_to_box``); ``predict``
+closes the shapes at the normalisation cube (``svr.nmr.voxels.clip_to_box``); ``predict``
 gives ``renderer.SDFGrid``s.
 Evaluation, inference and the demo all predict through here, so they score and show the same
 shapes; a network in memory is wrapped as ``LoadedModel(net)``."""
@@ -19,10 +19,10 @@ import renderer
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.serialization import scrub_unsafe_advice
 
-from svr.evaluation.voxels import clip_to_box
 from svr.inference.calibration import Calibration
 from svr.inference.checkpoints import load_network
 from svr.models.network import SVRNet, SVRPrediction
+from svr.nmr.voxels import clip_to_box
 
 PathLike = Union[str, os.PathLike]
 
@@ -60,7 +60,7 @@ class LoadedModel:
         checkpoint: the file it came from (None for a network given directly).
         categories: the training data's (category id, name) pairs, when the checkpoint has them.
         calibration: what the predictions go through after the network (None: nothing), the
-            checkpoint's when it holds one (``svr.evaluation.calibration.store_calibration``).
+            checkpoint's when it holds one (``svr.evaluation.calibration_search.store_calibration``).
     """
 
     net: SVRNet
@@ -168,7 +168,7 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
         batch_size: images per forward pass.
         refine: run the refiner (default: ``model.uses_refiner``).
         clip: intersect the shapes with the cube the objects are normalised into
-            (``svr.evaluation.voxels.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
+            (``svr.nmr.voxels.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
             output of this module and ``svr.evaluate`` goes through it.
         views: the images' NMR view indices (B,) (0..23, fractional allowed), or one for all: the
             camera each image was taken from. Needed by a network that reads pixel-aligned image

@@ -1,6 +1,6 @@
-"""Reconstructions of images by a loaded model: ``reconstruct`` predicts SDF grids
+"""Reconstructions of images by a loaded model: ``reconstruct_images`` predicts SDF grids
 (``svr.inference.prediction``), extracts watertight meshes by marching cubes (closed at the box)
-and renders previews from NMR views (``svr.view_renders``); ``save_reconstruction`` writes one
+and renders previews from NMR views (``svr.nmr.views``); ``save_reconstruction`` writes one
 (``<name>_sdf.npz``, ``<name>.ply``, ``<name>.obj``, ``<name>_views.png``, each atomically) and
 ``infer_files`` does both for image files (``svr.inference.images``) into a folder. The functions take
 a ``LoadedModel``; turning a checkpoint path into one is the command's (``svr.infer``)."""
@@ -20,10 +20,10 @@ import renderer
 from sdfcommon.numerics.meshing import sdf_to_mesh
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.outputs import ensure_output_dir, write_mesh, write_npz, write_png
-from svr.data.nmr import check_view_ids
 from svr.inference.images import find_images, find_mask, load_image
 from svr.inference.prediction import LoadedModel, check_input_views, check_model, predict
-from svr.view_renders import PREVIEW_VIEWS, render_previews
+from svr.nmr.format import check_view_ids
+from svr.nmr.views import PREVIEW_VIEWS, render_previews
 
 PathLike = Union[str, os.PathLike]
 OUTPUT_FORMATS = ("npz", "ply", "obj", "png")
@@ -51,7 +51,7 @@ class Reconstruction:
     views: tuple[int, ...]
 
 
-def reconstruct(model: LoadedModel, images: torch.Tensor, views: Sequence[int] = PREVIEW_VIEWS,
+def reconstruct_images(model: LoadedModel, images: torch.Tensor, views: Sequence[int] = PREVIEW_VIEWS,
                 render_size: int = 128, batch_size: int = 16, backend: str = "auto",
                 require_watertight: bool = False, names: Optional[Sequence[str]] = None,
                 input_views=None) -> list[Reconstruction]:
@@ -189,7 +189,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
             each image when it exists.
         input_view: the NMR view index (0..23, azimuth -15 * view degrees at 30 degrees elevation) of
             every image's camera; needed by a network with a pixel-aligned head.
-        Others: see ``reconstruct`` and ``save_reconstruction``.
+        Others: see ``reconstruct_images`` and ``save_reconstruction``.
     Returns:
         per image, {format: path} of the files written (in the order of the expanded inputs).
     Raises:
@@ -217,7 +217,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
     with tqdm(total=len(paths), desc="infer", unit="img", disable=not progress) as bar:
         for start in range(0, len(paths), batch_size):
             batch = torch.stack(tensors[start:start + batch_size])
-            recs = reconstruct(m, batch, views, render_size, batch_size, backend, require_watertight,
+            recs = reconstruct_images(m, batch, views, render_size, batch_size, backend, require_watertight,
                                names=[str(p) for p in paths[start:start + batch_size]], input_views=input_view)
             for k, rec in enumerate(recs):
                 i = start + k
@@ -227,5 +227,5 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
     return results
 
 
-__all__ = ["Reconstruction", "reconstruct", "preview_picture", "save_reconstruction", "infer_files", "check_formats",
+__all__ = ["Reconstruction", "reconstruct_images", "preview_picture", "save_reconstruction", "infer_files", "check_formats",
            "OUTPUT_FORMATS"]

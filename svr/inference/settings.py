@@ -9,8 +9,8 @@ from typing import Optional, Union
 
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.settings import PathSettings
-from svr.data.nmr import check_view_ids
 from svr.inference.reconstruction import check_formats
+from svr.nmr.format import check_view_ids
 
 
 @dataclass(frozen=True)

@@ -8,9 +8,9 @@ from typing import Sequence
 import torch
 
 from sdfcommon.numerics.meshing import sdf_to_mesh
-from svr.data.nmr import NUM_VIEWS
 from svr.inference.prediction import LoadedModel, predict_sdf
-from svr.view_renders import render_views
+from svr.nmr.format import NUM_VIEWS
+from svr.nmr.views import render_views
 
 
 @torch.no_grad()

@@ -1,4 +1,5 @@
-"""The single-view networks (plain nn.Modules) and, in ``svr.models.module``, their LightningModule."""
+"""The single-view networks (plain nn.Modules), in ``svr.models.module`` their LightningModule, and in
+``svr.models.checkpoint_layout`` the stage names and the key of the checkpoints it writes."""
 from svr.models.decoder import SDFDecoder, sphere_template
 from svr.models.encoder import ImageEncoder
 from svr.models.local import PixelAlignedHead

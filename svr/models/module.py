@@ -18,12 +18,12 @@ import torch
 import renderer
 
 from sdfcommon.tooling.checks import check_instance, check_int
-from svr.inference.checkpoints import CHECKPOINT_KEY, check_stage
 from svr.data.types import SVRBatch
 from svr.distributed import gather_unique
 from svr.losses import LossTerms, LossWeights, image_loss, total_loss, voxel_loss
-from svr.evaluation.metrics import iou_direct, iou_table
+from svr.models.checkpoint_layout import CHECKPOINT_KEY, check_stage
 from svr.models.network import SVRNet
+from svr.nmr.metrics import iou_direct, iou_table
 
 
 OptimizerFactory = Callable[[Iterable[torch.nn.Parameter]], torch.optim.Optimizer]
@@ -257,7 +257,7 @@ class SVRLightningModule(pl.LightningModule):
         self._val_iou, self._val_iou_coarse, self._val_category, self._val_key = [], [], [], []
 
     def validation_step(self, batch: SVRBatch, batch_idx: int) -> None:
-        """Fast direct IoU (``svr.evaluation.metrics.iou_direct``) of the stage's output and of the coarse SDF,
+        """Fast direct IoU (``svr.nmr.metrics.iou_direct``) of the stage's output and of the coarse SDF,
         one prediction per batch element from its first view."""
         coarse, refined = self.stage_sdf(batch.images[:, 0], batch.view_ids[:, 0])
         hs = self.net.half_side

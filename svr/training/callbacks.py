@@ -56,7 +56,7 @@ def visual_grid(visuals: dict[str, torch.Tensor], max_samples: int = 4, min_tile
     rows = []
     for i in range(n):
         # The input's RGB as given: the datasets already composite it over white
-        # (svr.data.nmr.images_to_float), so its alpha is not needed here.
+        # (svr.nmr.format.images_to_float), so its alpha is not needed here.
         tiles = [inp[i, :3].permute(1, 2, 0)]
         for k in range(v):
             tiles.append(target[i, k, 3, :, :, None].expand(h, w, 3))

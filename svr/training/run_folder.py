@@ -10,7 +10,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
-from svr.inference.checkpoints import CHECKPOINT_KEY, STAGES, load_checkpoint
+from svr.inference.checkpoints import load_checkpoint
+from svr.models.checkpoint_layout import CHECKPOINT_KEY, STAGES
 
 CONFIG_FILE = "config.yaml"
 CHECKPOINTS = "checkpoints"

@@ -12,8 +12,8 @@ from typing import Optional, Union
 import renderer
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.settings import Component, PathSettings, build_dataclass, settings_record
-from svr.inference.checkpoints import STAGES
 from svr.losses import LossWeights
+from svr.models.checkpoint_layout import STAGES
 
 SHADING_MODES = ("auto", True, False)
 INIT_FROM = ("best", "final")

@@ -9,7 +9,6 @@ initialises the weights. With several processes (``trainer=ddp``) every process 
 the same folder; only global rank 0 writes files."""
 from __future__ import annotations
 
-import csv
 import dataclasses
 import logging
 import sys
@@ -22,20 +21,22 @@ import numpy as np
 import pytorch_lightning as pl
 from hydra.utils import instantiate
 from pytorch_lightning.callbacks import ModelCheckpoint
-from pytorch_lightning.loggers import CSVLogger
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
 from sdfcommon.tooling.host_memory import keep_freed_memory
-from sdfcommon.tooling.outputs import remove_stale_temporaries, write_csv
+from sdfcommon.tooling.outputs import remove_stale_temporaries
 from sdfcommon.tooling.settings import settings_record
 
+from svr.data.datamodules import SVRDataModule
 from svr.data.symmetry import AXIS_NAMES, mirror_scores, symmetry_axis
 from svr.distributed import launch_rank_is_zero
-from svr.inference.checkpoints import CHECKPOINT_KEY, load_checkpoint, load_network_weights
+from svr.inference.checkpoints import load_checkpoint, load_network_weights
+from svr.models.checkpoint_layout import CHECKPOINT_KEY
 from svr.models.module import SVRLightningModule
 from svr.models.network import SVRNet
 from svr.training.callbacks import AtomicCheckpointIO
+from svr.training.logs import keep_earlier_metrics, quiet_known_noise
 from svr.training.run_folder import RunFolder
 from svr.training.settings import LossSettings, TrainSettings
 from svr.training.stopping import SaveOnStop, StopRequest, TrainingStopped
@@ -75,23 +76,6 @@ class TrainResult:
         return res.final
 
 
-class _DropAdvertisements(logging.Filter):
-    def filter(self, record: logging.LogRecord) -> bool:
-        return not str(record.msg).startswith("\U0001f4a1 Tip:")  # "try installing <a cloud logger>"
-
-
-def quiet_known_noise() -> None:
-    """Silences the messages every stage would print that say nothing about this run: Lightning's
-    advertisement for a cloud logger, a deprecation inside Lightning's own code (LeafSpec), and
-    the warning about modules in eval mode (the stages freeze parts of the network on purpose:
-    their batch-norm statistics must not move, ``SVRLightningModule.apply_stage``)."""
-    rank_zero = logging.getLogger("pytorch_lightning.utilities.rank_zero")
-    if not any(isinstance(f, _DropAdvertisements) for f in rank_zero.filters):
-        rank_zero.addFilter(_DropAdvertisements())
-    warnings.filterwarnings("ignore", message=r"`isinstance\(treespec, LeafSpec\)` is deprecated")
-    warnings.filterwarnings("ignore", message=r"Found \d+ module\(s\) in eval mode at the start of training")
-
-
 # ------------------------------------------------------------------------------------------------
 # Building blocks from the config
 
@@ -127,7 +111,7 @@ def resolve_mirror_axis(settings: TrainSettings, datamodule) -> TrainSettings:
     return dataclasses.replace(settings, model=model)
 
 
-def build_module(settings: TrainSettings, net: SVRNet, stage: str, datamodule) -> SVRLightningModule:
+def build_module(settings: TrainSettings, net: SVRNet, stage: str, datamodule: SVRDataModule) -> SVRLightningModule:
     """The LightningModule of one stage, from the loss and stage settings."""
     loss = settings.stage_loss(stage)
     stage_settings = settings.stage.of(stage)
@@ -137,13 +121,13 @@ def build_module(settings: TrainSettings, net: SVRNet, stage: str, datamodule) -
         net=net,
         stage=stage,
         loss_weights=loss.weights,
-        scene=build_scene(loss, getattr(datamodule, "shading", None)),
+        scene=build_scene(loss, datamodule.shading),
         render_size=loss.render_size,
         trace_settings=loss.trace,
         backend=loss.backend,
         optimizer=optimizer,
         scheduler=scheduler,
-        categories=getattr(datamodule, "categories", None),
+        categories=datamodule.categories,
         model_config=settings.model,
     )
 
@@ -162,60 +146,6 @@ def _instantiate_group(group: Optional[dict], **extra) -> list:
     return out
 
 
-def continue_metrics(log_dir: Path, resume_step: Optional[int]) -> Optional[Path]:
-    """Keeps the metrics of earlier runs of a stage in its ``metrics.csv``, which Lightning's CSV
-    logger would delete when it starts.
-
-    Resuming (``resume_step``: the checkpoint's step), the rows up to that step are kept in
-    ``metrics.csv`` and the logger appends to them (rows after it were logged by steps the resumed
-    run trains again). Otherwise an earlier file is moved aside to ``metrics.<k>.csv``.
-
-    Returns:
-        the file holding the earlier rows (``metrics.csv`` or the moved one), or None.
-    """
-    old = log_dir / "metrics.csv"
-    if not old.is_file():
-        return None
-    if resume_step is not None:  # rewritten in place, atomically
-        with open(old, newline="") as f:
-            reader = csv.DictReader(f)
-            columns = list(reader.fieldnames or [])
-            rows = [r for r in reader if _step_of(r) is not None and _step_of(r) <= resume_step]
-        return write_csv(old, rows, columns)
-    k = 1
-    while (log_dir / f"metrics.{k}.csv").exists():
-        k += 1
-    return old.rename(log_dir / f"metrics.{k}.csv")
-
-
-def _step_of(row: dict) -> Optional[int]:
-    try:
-        return int(float(row.get("step") or ""))
-    except ValueError:
-        return None
-
-
-def _adopt_metrics_file(logger: CSVLogger) -> None:
-    """Points a fresh CSV logger at a resumed stage's log folder: it appends to the ``metrics.csv``
-    kept by ``continue_metrics`` (its writer would delete the file, and warn about the folder,
-    when it starts)."""
-    log_dir = Path(logger.log_dir)
-    if not log_dir.is_dir():
-        return
-    path = log_dir / "metrics.csv"
-    columns = None
-    if path.is_file():
-        with open(path, newline="") as f:
-            columns = next(csv.reader(f), [])
-    kept = log_dir.rename(log_dir.with_name(f".{log_dir.name}.kept"))
-    writer = logger.experiment  # creates log_dir anew, empty
-    for item in kept.iterdir():
-        item.rename(log_dir / item.name)
-    kept.rmdir()
-    if columns is not None:
-        writer.metrics_keys = list(columns)
-
-
 def build_trainer(settings: TrainSettings, stage: str, run: RunFolder, stop: StopRequest,
                   resume_step: Optional[int] = None) -> pl.Trainer:
     """A Trainer for one stage: its step budget, callbacks (checkpoints into the stage's folder; a
@@ -229,11 +159,7 @@ def build_trainer(settings: TrainSettings, stage: str, run: RunFolder, stop: Sto
             cb.dirpath = str(run.checkpoints(stage))
     callbacks.append(SaveOnStop(run.last(stage), stop))
     loggers = _instantiate_group(settings.logger, save_dir=str(stage_dir))
-    for lg in loggers:
-        if isinstance(lg, CSVLogger) and launch_rank_is_zero():
-            continue_metrics(Path(lg.log_dir), resume_step)
-            if resume_step is not None:
-                _adopt_metrics_file(lg)
+    keep_earlier_metrics(loggers, resume_step)
     kwargs: dict[str, Any] = dict(
         max_steps=stage_settings.max_steps,
         callbacks=callbacks,

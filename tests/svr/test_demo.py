@@ -94,8 +94,8 @@ def test_demo_stopped_by_sigterm_resumes_and_counts_the_whole_run(tmp_path, caps
     another working directory, with a relative out) resumes that run, and timings.json counts the
     training time of both parts; the steps planned and reached are in iou.json too."""
     monkeypatch.chdir(tmp_path)
-    stop = ["+callbacks.terminator._target_=tests.svr.test_resume.TermAtStep", "+callbacks.terminator.stage=refine",
-            "+callbacks.terminator.step=1"]
+    stop = ["+callbacks.terminator._target_=tests.svr.training.test_resume.TermAtStep",
+            "+callbacks.terminator.stage=refine", "+callbacks.terminator.step=1"]
     args = ["out=rel/demo", "quiet=true", "protocol_workers=0", *tiny(tmp_path / "cache")]
     with pytest.raises(SystemExit) as stopped:
         demo([*args, *stop])
@@ -110,7 +110,7 @@ def test_demo_stopped_by_sigterm_resumes_and_counts_the_whole_run(tmp_path, caps
     assert timings["resumed"] and timings["train_seconds"] == pytest.approx(RunFolder(run_dir).train_seconds(SCHEDULE))
     assert timings["train_seconds"] > first_part
     steps = {s: {"planned": 2, "reached": 2} for s in SCHEDULE}
-    assert timings["steps"] == steps and result["iou"]["steps"] == steps
+    assert timings["steps"] == steps and result.iou["steps"] == steps
     assert json.loads((tmp_path / "rel" / "demo" / "iou.json").read_text())["steps"] == steps
 
 

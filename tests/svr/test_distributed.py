@@ -21,7 +21,8 @@ import pytest
 import pytorch_lightning as pl
 import torch
 
-from svr.data.datamodule import EvalShardSampler, ObjectViewSampler, ProceduralDataModule, RankShardedSampler
+from svr.data.datamodules import ProceduralDataModule
+from svr.data.samplers import EvalShardSampler, ObjectViewSampler, RankShardedSampler
 from svr.distributed import RankInfo, gather_unique, gather_uneven, launch_rank_is_zero, shard_indices
 
 REPO = Path(__file__).resolve().parents[2]
@@ -345,7 +346,7 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
 def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
     """torchrun, 2 processes, 9 images (5 + 4): the same files as a single-process evaluation."""
     from svr.evaluation.baselines import BASELINES
-    from svr.evaluation.benchmark import add_baselines, evaluate
+    from svr.evaluation.protocol import add_baselines, evaluate
     from svr.inference.prediction import load_model
     from svr.evaluation.tables import write_report
 
@@ -375,7 +376,7 @@ def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
 
 
 def test_evaluate_distributed_needs_a_process_group(ddp_run):
-    from svr.evaluation.benchmark import evaluate
+    from svr.evaluation.protocol import evaluate
     from svr.inference.prediction import load_model
 
     ckpt = ddp_run["run"] / "coarse" / "checkpoints" / "final.ckpt"
@@ -389,7 +390,7 @@ def test_evaluate_distributed_needs_a_process_group(ddp_run):
 
 CHILD = r"""
 import sys
-from svr.data.nmr import NMRDataset
+from svr.data.datasets import NMRDataset
 
 def wait(tag):
     print(tag, flush=True)
@@ -434,7 +435,7 @@ def test_memory_mapped_data_is_shared_by_processes(tmp_path):
     alone, then the other two: the memory the data costs, summed over the processes (Pss: a page
     shared by k processes counts 1/k in each), stays the size of the data plus a small overhead
     per process, instead of growing by the data size with every process."""
-    from svr.data.nmr import prepare_nmr
+    from svr.nmr.format import prepare_nmr
 
     root = tmp_path / "nmr"
     root.mkdir()

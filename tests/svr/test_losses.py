@@ -8,10 +8,10 @@ import torch
 import renderer
 import math
 
-from svr.evaluation.voxels import nmr_voxel_centres
 from svr.losses import (LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss,
                         voxel_distances, voxel_loss)
-from svr.view_renders import render_views
+from svr.nmr.views import render_views
+from svr.nmr.voxels import nmr_voxel_centres
 
 
 def test_silhouette_losses_hand_computed():

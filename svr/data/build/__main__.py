@@ -1,6 +1,6 @@
 """The mesh-to-NMR builder, ``python -m svr.data.build input=MESHES out=DATA`` / ``sdfdiff-build``
 (configs/build.yaml, whose comments show the command lines): turns a folder of meshes (ShapeNetCore
-v1 or v2, or ``<category>/<name>.obj|off|ply|stl|glb``) into the NMR format that ``svr.data.nmr``
+v1 or v2, or ``<category>/<name>.obj|off|ply|stl|glb``) into the NMR format that ``svr.nmr.format``
 reads, with a manifest row per mesh (``svr.data.build.dataset.build_dataset``). A mistake in the
 settings or files is one line ``sdfdiff-build: error: ...`` with exit status 2; a mesh that cannot be
 built is a skipped row, counted at the end."""

@@ -16,7 +16,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from svr.data.build.meshes import MESH_SUFFIXES
-from svr.data.nmr import NMR_CATEGORIES, SPLITS
+from svr.nmr.format import NMR_CATEGORIES, SPLITS
 
 LAYOUTS = ("auto", "shapenet_v1", "shapenet_v2", "flat")
 _MODEL_FILE = {"shapenet_v1": Path("model.obj"), "shapenet_v2": Path("models") / "model_normalized.obj"}

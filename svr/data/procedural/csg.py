@@ -5,7 +5,7 @@ exact (its SDF is the Euclidean distance); the set operations keep a lower bound
 (outside the shape the value never exceeds the true distance), so sphere tracing with it never steps
 through the surface. Two evaluators of the same program: ``CSGShape.sdf`` in PyTorch (the reference,
 differentiable) and a numba kernel (``sdf_numpy``, ``trace_rays``, ``surface_normals``) for the
-renders of the procedural dataset; tests/svr/test_procedural.py checks that they agree. Frames:
+renders of the procedural dataset; tests/svr/data/procedural/test_procedural.py checks that they agree. Frames:
 world coordinates, y up. ``CSGShape.scale`` and ``CSGShape.offset`` map the program's own frame to
 the world: ``sdf_world(p) = scale * sdf_program(p / scale + offset)``.
 """

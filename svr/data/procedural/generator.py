@@ -27,23 +27,22 @@ import torch
 from tqdm.auto import tqdm
 
 import renderer
-from renderer import NMR_NUM_VIEWS as NUM_VIEWS
 from sdfcommon.tooling.checks import check_int, check_shape
 from sdfcommon.tooling.outputs import remove_stale_temporaries, write_json, write_npz
 from sdfcommon.tooling.processes import default_workers, map_unordered
-from svr.data.nmr import IMAGE_SHAPE, VOXEL_SHAPE, nmr_file
-from svr.evaluation.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxelize_sdf_protocol
-from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES, ProceduralCategory,
-                         make_shape, procedural_category, style_of)
 from svr.data.procedural.appearance import NEUTRAL_COLOUR, NMR_LIGHTING, Lighting, colour_rng, draw_colours
+from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NMR_PROCEDURAL_CATEGORIES,
+                                            ProceduralCategory, make_shape, procedural_category, style_of)
 from svr.data.procedural.csg import CSGShape, surface_normals_and_parts, trace_rays
 from svr.data.types import ShadingModel
+from svr.nmr.format import IMAGE_SHAPE, NUM_VIEWS, SPLITS, VOXEL_SHAPE, nmr_file
+from svr.nmr.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxelize_sdf_protocol
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
 GENERATOR_VERSION = 4
 
 IMAGE_SIZE = 64
-SPLITS = ("train", "val", "test")
+
 
 def object_seed(seed: int, category_id: str, split: str, index: int) -> list[int]:
     """The seed of one object: independent of how many objects and which other categories are made."""
@@ -210,7 +209,7 @@ def voxelize_shape(shape: CSGShape, resolution: int = NMR_VOXEL_RESOLUTION, rule
     Args:
         rule: "centre" (SPEC section 5's definition): occupied iff the analytic SDF is negative at
             the voxel centre ``((j - c)/(R-1), (i - c)/(R-1), (c - k)/(R-1))``. "protocol": the
-            benchmark's voxelisation (``svr.evaluation.voxels.voxelize_sdf_protocol``) of a marching-cubes
+            benchmark's voxelisation (``svr.nmr.voxels.voxelize_sdf_protocol``) of a marching-cubes
             mesh of the analytic SDF sampled at ``mesh_resolution``^3: surface voxels included, so
             thin parts come out about one voxel thicker, as the protocol makes predictions.
     Returns:
@@ -242,7 +241,7 @@ class ProceduralSettings:
         supersample: rays per pixel side for anti-aliasing.
         voxel_rule: how the ground-truth voxels are made (``voxelize_shape``): "protocol" (the
             default: the benchmark's own voxelisation of the exact shape's mesh, so the exact shape
-            on the model's grid scores about 1 under ``svr.evaluation.metrics.iou_protocol``) or "centre"
+            on the model's grid scores about 1 under ``svr.nmr.metrics.iou_protocol``) or "centre"
             (SPEC 5's definition, centre inside; there an exact prediction scores about 0.6).
     """
 
@@ -401,7 +400,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
     world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``. The folder holds
     ``{cid}_{split}_images.npz`` and ``{cid}_{split}_voxels.npz`` (key ``arr_0``, as NMR ShapeNet), a
     ``metadata.json`` (categories, settings, lighting), and the memory-mapped ``.npy`` copies
-    that ``svr.data.nmr.prepare_nmr`` makes of real NMR data.
+    that ``svr.nmr.format.prepare_nmr`` makes of real NMR data.
 
     The work goes into ``.<name>.partial`` beside ``out_dir`` in chunks of ``CHUNK_OBJECTS``
     objects: each chunk is written into the memory-mapped ``.npy`` arrays, flushed, then marked

@@ -1,5 +1,5 @@
 """The procedural shape categories of the ShapeNet-shaped benchmark, as parametric CSG shapes: the
-13 categories of NMR ShapeNet (the same synset ids, in the order of ``svr.data.nmr.NMR_CATEGORIES``),
+13 categories of NMR ShapeNet (the same synset ids, in the order of ``svr.nmr.format.NMR_CATEGORIES``),
 one module each, and two extras (mug, shelf, in ``extras``). Each category has a few *styles*,
 structurally different variants, and within a style an object's proportions, part shapes, part
 counts and optional parts are drawn into one parameter record from a ``numpy.random.Generator``, so
@@ -15,8 +15,8 @@ from typing import Any, Callable, Sequence, Union
 
 import numpy as np
 
-from svr.data.procedural.categories import (airplane, bench, cabinet, car, chair, display, extras, lamp, phone,
-                                            rifle, sofa, speaker, table, vessel)
+from svr.data.procedural.categories import (airplane, bench, cabinet, car, chair, display, extras, lamp, phone, rifle,
+                                            sofa, speaker, table, vessel)
 from svr.data.procedural.categories.blocks import MAX_RAW_SIZE, MIN_PART
 from svr.data.procedural.csg import CSGShape
 

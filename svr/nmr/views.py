@@ -1,0 +1,81 @@
+"""Predicted SDF grids rendered from NMR views: prediction -> renders. One function,
+``render_views``, renders B grids each from its own V NMR views (``renderer.Cameras.nmr``) with a
+scene whose effects decide which passes run. Training's image loss uses it with gradients and the
+dataset's scene; ``render_previews`` is the same call without gradients and with a neutral grey
+preview scene, for the pictures of inference and the demo.
+"""
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import torch
+
+import renderer
+from sdfcommon.numerics.regularisers import check_grid
+from sdfcommon.tooling.checks import check_int, check_shape
+
+from svr.nmr.format import check_view_ids
+
+PREVIEW_VIEWS = (0, 6, 12, 18)  # NMR views: azimuth 0, -90, -180, -270 degrees
+# The renders of the prediction: a neutral grey material lit from each camera (every view alike).
+PREVIEW_SCENE = renderer.Scene(effects=("shading",), lights=(), camera_light=0.75, camera_light_falloff=False,
+                               ambient=0.25, albedo=(0.8, 0.8, 0.8), background=1.0)
+
+
+def render_views(
+    sdf: torch.Tensor,
+    half_side: float,
+    view_ids: torch.Tensor,
+    scene: renderer.Scene,
+    image_size: int = 64,
+    trace_settings: renderer.TraceSettings = renderer.TraceSettings(),
+    backend: str = "auto",
+) -> tuple[Optional[torch.Tensor], Optional[torch.Tensor]]:
+    """Renders each of B SDF grids from its V NMR views.
+
+    Args:
+        sdf: (B, N, N, N) SDF over ``[-half_side, half_side]^3`` (world units, NMR ShapeNet frame).
+        view_ids: (B, V) NMR view indices (``renderer.Cameras.nmr``).
+        scene: renderer.Scene (its effects decide which passes run).
+        image_size: render side H = W.
+    Returns:
+        silhouettes (B, V, H, W) (None unless the scene asks for them) and colours (B, V, C, H, W)
+        (None unless the scene shades).
+    """
+    check_grid(sdf)
+    check_shape(view_ids, "view_ids", f"{sdf.shape[0]}, V")
+    check_int(image_size, "image_size", minimum=1)
+    b, v = view_ids.shape
+    grid = renderer.SDFGrid(sdf, -float(half_side), float(half_side))
+    cams = renderer.Cameras.nmr(view_ids.reshape(-1).cpu(), image_size=image_size, dtype=sdf.dtype,
+                                device=sdf.device)
+    out = renderer.render(grid, cams, scene, trace_settings, backend)
+    sil = out.silhouette.reshape(b, v, image_size, image_size) if out.silhouette is not None else None
+    colours = None
+    if out.image is not None:
+        colours = out.image.reshape(b, v, image_size, image_size, -1).permute(0, 1, 4, 2, 3)
+    return sil, colours
+
+
+@torch.no_grad()
+def render_previews(grid: renderer.SDFGrid, views: Sequence[int] = PREVIEW_VIEWS, image_size: int = 128,
+                    backend: str = "auto") -> torch.Tensor:
+    """Shaded renders of each grid from the same NMR ``views`` (``PREVIEW_SCENE``: grey, white background).
+
+    Args:
+        grid: B SDF grids over a cube centred at the origin (the network's box).
+    Returns:
+        (B, K, S, S, 3) float32 CPU in [0, 1].
+    """
+    views = list(check_view_ids(views, allow_empty=False))
+    half = float(grid.bbox_max[0])
+    if not (torch.allclose(grid.bbox_max, torch.full_like(grid.bbox_max, half))
+            and torch.allclose(grid.bbox_min, torch.full_like(grid.bbox_min, -half))):
+        raise ValueError(f"grid must span a cube centred at the origin (the network's box), got "
+                         f"{grid.bbox_min.tolist()} .. {grid.bbox_max.tolist()}")
+    ids = torch.tensor(views, dtype=torch.long).repeat(grid.batch_size, 1)
+    _, colours = render_views(grid.values, half, ids, PREVIEW_SCENE, image_size, backend=backend)
+    return colours.permute(0, 1, 3, 4, 2).float().clamp(0, 1).cpu()
+
+
+__all__ = ["render_views", "render_previews", "PREVIEW_SCENE", "PREVIEW_VIEWS"]

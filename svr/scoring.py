@@ -1,0 +1,110 @@
+"""Scores a finished training run the way the demo reports it: its last stage's checkpoint, its
+coarse stage's and every baseline (``svr.evaluation.baselines``) on the same images by the benchmark
+protocol (``score_run``), then the evaluation's files, once, beside the demo's pictures of
+predictions and meshes (``RunScores.write``). Each checkpoint is first calibrated on the validation
+split (``svr.evaluation.calibration_search``), once: the choice is stored in the checkpoint, so
+inference from it applies the same."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Optional
+
+from hydra.utils import instantiate
+
+import renderer
+from svr.data.datamodules import SVRDataModule
+from svr.evaluation.baselines import BASELINES
+from svr.evaluation.calibration_search import search_calibration, store_calibration, stored_calibration
+from svr.evaluation.protocol import add_baselines, evaluate
+from svr.evaluation.tables import EvaluationResult, format_table, write_report
+from svr.inference.prediction import load_model
+from svr.inference.showcase import showcase
+from svr.nmr.metrics import IoUTable
+from svr.training.run_folder import RunFolder
+from svr.training.settings import TrainSettings
+
+
+@dataclass(frozen=True)
+class RunScores:
+    """A finished run scored by the benchmark protocol.
+
+    Attributes:
+        result: the last stage's evaluation, with the baselines on the same images.
+        label: the last stage's row name in the table.
+        extra: more rows of the table (the coarse stage alone, when it is another checkpoint).
+        calibrations: {stage: the calibration search's record} of each checkpoint scored (empty when
+            none was applied).
+        pictures: ``predictions.png`` and the meshes, already written.
+    """
+
+    result: EvaluationResult
+    label: str
+    extra: dict[str, IoUTable] = field(default_factory=dict)
+    calibrations: dict[str, dict] = field(default_factory=dict)
+    pictures: list[Path] = field(default_factory=list)
+
+    @property
+    def table(self) -> str:
+        """The markdown table (``svr.evaluation.tables.format_table``)."""
+        return format_table(self.result, self.extra, self.label)
+
+    def write(self, out_dir: Path, fields: Optional[Mapping[str, Any]] = None) -> dict[str, Path]:
+        """The evaluation's files in ``out_dir`` (``svr.evaluation.tables.write_report``), ``iou.json``
+        holding the calibration searches (``"calibration_search"``) and ``fields``."""
+        return write_report(self.result, out_dir, extra_rows=self.extra, label=self.label,
+                            fields={"calibration_search": self.calibrations, **(fields or {})})
+
+
+def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool = True, again: bool = False) -> dict:
+    """The calibration record of the checkpoint at ``path``: the stored one, else (or with ``again``,
+    replacing it) one searched on the data module's validation split and stored
+    (``svr.evaluation.calibration_search``)."""
+    record = None if again else stored_calibration(path)
+    if record is None:
+        datamodule.prepare_split("val", progress=progress)
+        search = search_calibration(load_model(path, "cpu"), datamodule.dataset("val"), progress=progress)
+        store_calibration(path, search)
+        record = search.record()
+        print(f"calibrated {path} on the validation split in {search.seconds:.0f} s: {search.best.describe()} "
+              f"(validation IoU {search.uncalibrated_iou:.4f} -> {search.best_iou:.4f})", flush=True)
+    return record
+
+
+def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str = "test", progress: bool = True,
+              protocol_workers: int = 0, calibrate: bool = True, recalibrate: bool = False) -> RunScores:
+    """Scores a finished run with the benchmark protocol: its last stage's checkpoint, its coarse
+    stage's and every baseline (``svr.evaluation.baselines``) on the same images; draws
+    ``predictions.png`` and ``meshes/`` into ``out_dir`` (the tables are ``RunScores.write``'s). With
+    ``calibrate`` each checkpoint is calibrated first (``calibrate_checkpoint``; with
+    ``recalibrate`` searched again even where one is stored); without, none is applied."""
+    dm = instantiate(settings.data)
+    dm.prepare_data()
+    schedule = list(settings.stage.schedule)
+    final_ckpt, coarse_ckpt = run.best_or_final(schedule[-1]), run.best_or_final(schedule[0])
+    calibrations = {}
+    if calibrate:
+        for stage, path in ((schedule[-1], final_ckpt), (schedule[0], coarse_ckpt)):
+            if stage not in calibrations:
+                calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate)
+
+    def load(path: Path):
+        model = load_model(path, "cpu")
+        return model if calibrate else dataclasses.replace(model, calibration=None)
+
+    kwargs = dict(progress=progress, protocol_workers=protocol_workers)  # batches: the data's eval_batch_size
+    model = load(final_ckpt)
+    result = evaluate(model, dm, split, **kwargs)
+    coarse_model = load(coarse_ckpt)
+    extra = {}
+    if coarse_ckpt != final_ckpt:
+        extra["coarse stage alone"] = evaluate(coarse_model, dm, split, **kwargs).table
+    result = add_baselines(result, dm, BASELINES, model, progress=progress)
+    scene = (dm.shading.scene(effects=("shading",)) if dm.shading is not None else
+             renderer.Scene(effects=("shading",), background=(1.0, 1.0, 1.0)))
+    pictures = showcase(model, coarse_model, dm.dataset(split), dm.categories, scene, out_dir)
+    return RunScores(result, f"ours ({schedule[-1]} stage, {result.output})", extra, calibrations, list(pictures))
+
+
+__all__ = ["RunScores", "calibrate_checkpoint", "score_run"]

@@ -1,0 +1,181 @@
+"""svr.evaluation.baselines: mean shapes, retrieval and the oracle, scored on an evaluation's images; their rows
+in the evaluation table."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from svr.data.datasets import NMRDataset
+from svr.data.procedural.generator import dataset_shape
+from svr.evaluation.baselines import (BASELINES, category_mean_shapes, check_baselines, mean_shape, oracle_voxels,
+                                      protocol_voxels_of_voxels, retrieve, score_baselines)
+from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report
+from svr.nmr.format import NMR_CATEGORIES, nmr_file, prepare_nmr
+from svr.nmr.metrics import voxel_iou
+
+
+class VoxelSet:
+    """The part of NMRDataset the mean shapes read."""
+
+    def __init__(self, voxels: torch.Tensor, counts: list[int]):
+        self._voxels = voxels
+        self.counts = counts
+        self.offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+    def __len__(self) -> int:
+        return len(self._voxels)
+
+    def voxels(self, i: int) -> torch.Tensor:
+        return self._voxels[i]
+
+
+def test_mean_shape_is_scored_through_the_protocol():
+    a = torch.zeros(3, 32, 32, 32, dtype=torch.bool)
+    a[:, 8:24, 8:24, 8:24] = True    # a core every object shares
+    a[0, 2:8, :, :] = True           # one object's own slab
+    shape, threshold = mean_shape(VoxelSet(a, [3]))
+    # The slab is in 1 of 3 objects: the best constant shape is the core, as the protocol sees it
+    # (marching cubes of its SDF, then the benchmark's dilated voxelisation).
+    assert torch.equal(shape, protocol_voxels_of_voxels(a[1]))
+    assert shape.sum() > a[1].sum() and (shape & a[1]).sum() == a[1].sum()
+    best = float(voxel_iou(shape.expand_as(a), a).mean())
+    assert best > float(voxel_iou(protocol_voxels_of_voxels(a[0]).expand_as(a), a).mean())
+    assert 0.05 <= threshold <= 0.95
+    with pytest.raises(ValueError, match="non-empty"):
+        mean_shape(VoxelSet(torch.zeros(0, 32, 32, 32, dtype=torch.bool), [0]))
+
+
+def test_category_mean_shapes_are_told_the_category():
+    cube = torch.zeros(32, 32, 32, dtype=torch.bool)
+    cube[10:22, 10:22, 10:22] = True
+    slab = torch.zeros(32, 32, 32, dtype=torch.bool)
+    slab[4:8, 2:30, 2:30] = True
+    shapes = category_mean_shapes(VoxelSet(torch.stack([cube, cube, slab, slab]), [2, 2]))
+    # Each category's objects are identical: its mean SDF is theirs, and the best level fits them best.
+    for c, obj in ((0, cube), (1, slab)):
+        assert float(voxel_iou(shapes[c], obj)) >= float(voxel_iou(protocol_voxels_of_voxels(obj), obj)) - 1e-9
+        assert float(voxel_iou(shapes[c], obj)) > 0.7
+    assert float(voxel_iou(shapes[0], slab)) < 0.1
+
+
+def _write_nmr_folder(root, counts: dict[str, dict[str, int]], seed: int = 0):
+    """An NMR-format folder of random silhouettes and voxels: {category id: {split: objects}}."""
+    rng = np.random.default_rng(seed)
+    arrays = {}
+    for cid, sizes in counts.items():
+        for split, n in sizes.items():
+            images = np.zeros((n, 24, 4, 64, 64), dtype=np.uint8)
+            images[:, :, 3] = (rng.random((n, 24, 64, 64)) < 0.4) * 255
+            voxels = rng.random((n, 32, 32, 32)) < 0.3
+            arrays[(cid, split)] = [images, voxels]
+    return arrays
+
+
+def _save(root, arrays):
+    root.mkdir(parents=True, exist_ok=True)
+    for (cid, split), (images, voxels) in arrays.items():
+        np.savez_compressed(nmr_file(root, cid, split, "images"), images)
+        np.savez_compressed(nmr_file(root, cid, split, "voxels"), voxels)
+
+
+def _result_over(objects: NMRDataset, views) -> EvaluationResult:
+    """An EvaluationResult skeleton over every object of a split and the given views."""
+    cat, obj, view = [], [], []
+    for g in range(len(objects)):
+        c, o = objects.locate(g)
+        for v in views:
+            cat.append(c), obj.append(o), view.append(v)
+    n = len(cat)
+    return EvaluationResult(split=objects.split, dataset="test", categories=tuple(objects.categories),
+                            is_nmr_shapenet=True, checkpoint=None, stage="joint", output="refined",
+                            category=np.array(cat), object_index=np.array(obj), view=np.array(view),
+                            iou=np.full(n, 0.5))
+
+
+def test_retrieval_finds_an_identical_training_object(tmp_path):
+    ids = [NMR_CATEGORIES[0][0], NMR_CATEGORIES[4][0]]  # airplane, chair
+    arrays = _write_nmr_folder(tmp_path, {ids[0]: {"train": 3, "test": 2}, ids[1]: {"train": 3, "test": 1}})
+    # Test objects that are copies of training objects (one from the other category: retrieval is
+    # not told the category).
+    for (src_c, src_o), (dst_c, dst_o) in ((((ids[0], 2)), (ids[0], 0)), ((ids[0], 1), (ids[1], 0))):
+        for k in range(2):
+            arrays[(dst_c, "test")][k][dst_o] = arrays[(src_c, "train")][k][src_o]
+    _save(tmp_path, arrays)
+    prepare_nmr(tmp_path, categories=ids, splits=("train", "test"), progress=False)  # memory-mapped, as NMR data is read
+    train, test = NMRDataset(tmp_path, "train", categories=ids), NMRDataset(tmp_path, "test", categories=ids)
+    result = _result_over(test, range(24))
+    scores = score_baselines(["retrieval", "oracle"], result, test, train, 0.6, 64, progress=False)
+    assert list(scores) == ["retrieval"]  # no oracle on data without analytic shapes
+    copies = ((result.category == 0) & (result.object_index == 0)) | (result.category == 1)
+    np.testing.assert_array_equal(scores["retrieval"][copies], 1.0)
+    assert scores["retrieval"][~copies].max() < 0.5  # random voxels of another object
+    # The index itself, per view, for the copy of training object 2 (global index 2).
+    queries = np.stack([test.images_uint8(0, [v])[0, 3] for v in range(24)])
+    np.testing.assert_array_equal(retrieve(train, queries, np.arange(24)), 2)
+    np.testing.assert_array_equal(retrieve(train, queries[:4], np.arange(4), chunk=1), 2)
+
+
+def test_oracle_and_baselines_on_procedural_data(tiny_procedural):
+    """The oracle is the exact shape on the model's grid: at least 0.97 at 64^3 against the default
+    (protocol) ground truth, lower on a coarser grid; every baseline gives one IoU per image."""
+    cache, root, settings = tiny_procedural
+    assert settings.voxel_rule == "protocol"
+    test, train = NMRDataset(root, "test"), NMRDataset(root, "train")
+    result = _result_over(test, [0, 5])
+    scores = score_baselines(BASELINES, result, test, train, 0.6, 64, progress=False)
+    assert list(scores) == list(BASELINES)
+    for name, values in scores.items():
+        assert values.shape == result.iou.shape and np.all((values >= 0) & (values <= 1)), name
+    assert scores["oracle"].min() >= 0.97
+    assert np.all(scores["oracle"] >= scores["mean_shape"])
+    cid = result.categories[0][0]
+    coarse = float(voxel_iou(oracle_voxels(root, cid, "test", 0, 0.6, 24), test.voxels(0)))
+    assert coarse < scores["oracle"][0]
+    shape = dataset_shape(root, cid, "test", 0)
+    assert shape.sdf_numpy(np.zeros((1, 3))).shape == (1,)
+    with pytest.raises(ValueError, match="no object 5"):
+        dataset_shape(root, cid, "test", 5)
+
+
+def test_baseline_names_are_checked():
+    assert check_baselines(None) == () and check_baselines(["retrieval", "retrieval"]) == ("retrieval",)
+    with pytest.raises(ValueError, match="unknown baseline 'nearest'"):
+        check_baselines(["nearest"])
+    with pytest.raises(ValueError, match="string"):
+        check_baselines("retrieval")
+
+
+def _fake(nmr: bool) -> EvaluationResult:
+    cats = tuple(NMR_CATEGORIES[:2])
+    return EvaluationResult(split="test", dataset="x", categories=cats, is_nmr_shapenet=nmr, checkpoint=None,
+                            stage="joint", output="refined", category=np.array([0, 0, 1, 1]),
+                            object_index=np.array([0, 1, 0, 1]), view=np.zeros(4, dtype=np.int64),
+                            iou=np.array([0.6, 0.8, 0.5, 0.5]),
+                            baselines={"mean_shape": np.array([0.2, 0.2, 0.1, 0.1]),
+                                       "retrieval": np.array([0.5, 0.5, 0.6, 0.6])})
+
+
+def test_baselines_are_rows_of_the_table_with_ours_minus_retrieval(tmp_path):
+    res = _fake(nmr=False)
+    header, rows = table_rows(res)
+    by_method = {r[0]: r[1:] for r in rows}
+    assert header == ["method", "airplane", "bench", "mean"]
+    assert by_method["mean shape"] == ["0.2000", "0.1000", "0.1500"]
+    assert by_method["retrieval"] == ["0.5000", "0.6000", "0.5500"]
+    assert by_method["ours - retrieval"] == ["+0.2000", "-0.1000", "+0.0500"]
+    assert not any("paper" in r[0] for r in rows)  # procedural data: no reference rows
+    text = format_table(res)
+    assert "not comparable" in text and "retrieval:" in text
+    files = write_report(res, tmp_path)
+    summary = json.loads(files["json"].read_text())
+    assert summary["baselines"]["retrieval"]["mean"] == pytest.approx(0.55)
+    assert summary["ours_minus_retrieval"]["categories"]["bench"] == pytest.approx(-0.1)
+    assert "iou_retrieval" in files["per_image"].read_text().splitlines()[0]
+
+
+def test_nmr_tables_give_both_sdfdiff_means():
+    text = format_table(_fake(nmr=True))
+    assert "0.6674" in text and "0.6784" in text
