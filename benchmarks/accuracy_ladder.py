@@ -25,11 +25,9 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
-from hydra.utils import instantiate
 
-from benchmarks.procedural_dispersion import PRESETS, all_voxels, lookup_ceiling
-from benchmarks.report import atomic_write_text, machine_info, save_figure
-from sdfcommon.tooling.commands import compose
+from benchmarks.common import (all_voxels, atomic_write_text, bootstrap_means, lookup_ceiling, machine_info,
+                               procedural_data, save_figure)
 from svr.inference.calibration import Calibration
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -47,33 +45,6 @@ ROWS = {
 }
 
 
-def bootstrap_means(values: np.ndarray, category: np.ndarray, samples: int = 2000,
-                    seed: int = 0) -> tuple[dict[int, tuple[float, float]], tuple[float, float]]:
-    """95% percentile bootstrap intervals over objects: per category of its mean, and of the
-    benchmark's mean over categories (objects resampled within each category, so every draw keeps
-    the categories' sizes).
-
-    Args:
-        values: (N,) per-object scores. category: (N,) int category of each object.
-    Returns:
-        ({category: (lo, hi)}, (lo, hi) of the mean over categories).
-    """
-    values = np.asarray(values, dtype=np.float64)
-    category = np.asarray(category)
-    if values.shape != category.shape or values.ndim != 1 or not len(values):
-        raise ValueError(f"values and category must be equal non-empty 1-D arrays, got {values.shape} "
-                         f"and {category.shape}")
-    rng = np.random.default_rng(seed)
-    per_cat, draws = {}, []
-    for c in np.unique(category):
-        v = values[category == c]
-        means = v[rng.integers(len(v), size=(samples, len(v)))].mean(1)
-        per_cat[int(c)] = (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
-        draws.append(means)
-    overall = np.mean(draws, axis=0)
-    return per_cat, (float(np.percentile(overall, 2.5)), float(np.percentile(overall, 97.5)))
-
-
 def read_per_object(path: Path) -> dict[tuple[str, int], dict[str, float]]:
     """A per_object.csv (``svr.evaluation.tables.write_report``) keyed by (category name, object index)."""
     with open(path, newline="") as f:
@@ -82,11 +53,9 @@ def read_per_object(path: Path) -> dict[tuple[str, int], dict[str, float]]:
 
 
 def lookup_per_object(preset: str, overrides: Sequence[str] = ()) -> tuple[dict[tuple[str, int], float], list[str]]:
-    """The lookup ceiling of every test object (``benchmarks.procedural_dispersion``), keyed as
+    """The lookup ceiling of every test object (``benchmarks.common.lookup_ceiling``), keyed as
     ``read_per_object``, and the category names in the data's order."""
-    cfg = compose("eval", [f"data={PRESETS[preset]}", *overrides])
-    dm = instantiate(cfg.data)
-    dm.prepare_data()
+    dm = procedural_data(preset, overrides)
     test, train = dm.dataset("test"), dm.dataset("train")
     best = lookup_ceiling(all_voxels(test), all_voxels(train))
     names = [n for _, n in test.categories]

@@ -3,24 +3,24 @@
 (``--help`` shows examples). Three parts, the renderer's (benchmarks/accuracy_vs_time_renderer.py),
 multi-view reconstruction's (benchmarks/accuracy_vs_time_mvr.py) and single-view training's
 (benchmarks/accuracy_vs_time_svr.py), each give a table, a plot (Pareto front marked, default
-highlighted) and a reading. Each part's section is kept in ``<work>/sections/<part>.md`` (with
-``<part>.json``: when and how long it ran), so that ``--parts`` reruns some parts and the report
-is assembled from the latest of each; the plots go to ``<docs>/study_*.png`` and the report to
-``<docs>/accuracy_vs_time.md``, except that a ``--quick`` run writes to outputs/study_quick/ unless
-``--docs`` says otherwise, so that it never replaces the real report.
+highlighted) and a reading. Each part runs as its own command, ``python -m
+benchmarks.accuracy_vs_time_<part>``, in a process of its own, and keeps its section in
+``<work>/sections/<part>.md`` (with ``<part>.json``: when and how long it ran), so that ``--parts``
+reruns some parts and the report is assembled from the latest of each; the plots go to
+``<docs>/study_*.png`` and the report to ``<docs>/accuracy_vs_time.md``, except that a ``--quick``
+run writes to outputs/study_quick/ unless ``--docs`` says otherwise, so that it never replaces the
+real report.
 """
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
+import subprocess
+import sys
 from pathlib import Path
 from typing import Optional, Sequence
 
-import renderer
-from benchmarks import accuracy_vs_time_mvr, accuracy_vs_time_renderer, accuracy_vs_time_svr
-from benchmarks.accuracy_vs_time_svr import parse_steps
-from benchmarks.report import atomic_write_text, load_average, machine_info, progress_log, timed
+from benchmarks.common import (StudySection, atomic_write_text, machine_info, parse_steps, progress_log,
+                               study_folders)
 import mvr
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,58 +39,47 @@ def parse_parts(text: str) -> tuple[str, ...]:
     return tuple(p for p in PARTS if p in parts)
 
 
-def renderer_devices(cuda: bool = True) -> tuple[str, ...]:
-    """The renderer part's devices: the CPU, and CUDA where ``cuda`` and its fused kernel runs."""
-    if not cuda:
-        return ("cpu",)
-
-    return ("cpu", "cuda") if renderer.backend_available("cuda")[0] else ("cpu",)
-
-
-def run_part(part: str, docs: Path, work: Path, quick: bool, cuda: bool, svr_steps: Optional[tuple[int, int]],
-             progress: bool) -> str:
-    """Runs one part; returns its markdown section (its plots are written into ``docs``)."""
-    if part == "renderer":
-        return "\n".join(accuracy_vs_time_renderer.run(docs, quick=quick, device=d, progress=progress)
-                         for d in renderer_devices(cuda))
-    if part == "mvr":
-        return accuracy_vs_time_mvr.run(docs, work, quick=quick, progress=progress)
-    if part == "svr":
-        return accuracy_vs_time_svr.run(docs, work, quick=quick, steps=svr_steps, progress=progress)
-    raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+def part_command(part: str, docs: Path, work: Path, quick: bool = False, cuda: bool = True,
+                 svr_steps: Optional[tuple[int, int]] = None, threads: int = 1, progress: bool = True) -> list[str]:
+    """The command line that runs one part, ``python -m benchmarks.accuracy_vs_time_<part>``, with
+    the study's options (those that concern it)."""
+    if part not in PARTS:
+        raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+    cmd = [sys.executable, "-m", f"benchmarks.accuracy_vs_time_{part}", "--docs", str(docs.resolve()),
+           "--work", str(work.resolve()), "--threads", str(threads)]
+    flags = {"--quick": quick, "--no-progress": not progress, "--no-cuda": part == "renderer" and not cuda}
+    cmd += [flag for flag, on in flags.items() if on]
+    if part == "svr" and svr_steps is not None:
+        cmd += ["--steps", ",".join(map(str, svr_steps))]
+    return cmd
 
 
 def run_parts(parts: Sequence[str], docs: Path, work: Path, quick: bool = False, cuda: bool = True,
-              svr_steps: Optional[tuple[int, int]] = None, progress: bool = True) -> Path:
-    """Runs the given parts (keeping each section and its timing under ``work/sections``), then
-    writes the report from the latest section of every part. Returns the report's path."""
+              svr_steps: Optional[tuple[int, int]] = None, progress: bool = True, threads: int = 1) -> Path:
+    """Runs the given parts, one process each (each keeps its section and its timing under
+    ``work/sections``), then writes the report from the latest section of every part. Returns the
+    report's path; a part that fails raises ``subprocess.CalledProcessError``."""
     log = progress_log(progress, indent="")
-    sections = work / "sections"
     for part in parts:
         log(f"study: {part}")
-        load_before = load_average()
-        t = timed(lambda: run_part(part, docs, work, quick, cuda, svr_steps, progress))
-        atomic_write_text(sections / f"{part}.md", t.result)
-        atomic_write_text(sections / f"{part}.json", json.dumps({
-            "finished": datetime.datetime.now().isoformat(timespec="seconds"), "wall_s": t.wall, "cpu_s": t.cpu,
-            "load_before": load_before, "load_after": load_average(), "quick": quick}, indent=2) + "\n")
-        log(f"study: {part} took {t.wall:.0f} s wall, {t.cpu:.0f} s CPU")
+        subprocess.run(part_command(part, docs, work, quick, cuda, svr_steps, threads, progress), cwd=ROOT,
+                       check=True)
+        section = StudySection.read(work, part)
+        log(f"study: {part} took {section.wall_s:.0f} s wall, {section.cpu_s:.0f} s CPU")
     return write_report(docs, work)
 
 
 def write_report(docs: Path, work: Path) -> Path:
     """Assembles ``docs/accuracy_vs_time.md`` from the sections kept under ``work/sections`` (a
     banner says so when any of them comes from a ``--quick`` run)."""
-    sections = work / "sections"
     rows, bodies, quick = [], [], False
     for part in PARTS:
-        md, meta = sections / f"{part}.md", sections / f"{part}.json"
-        if md.is_file() and meta.is_file():
-            m = json.loads(meta.read_text())
-            quick = quick or bool(m.get("quick"))
-            rows.append(f"| {TITLES[part]} | {m['finished']} | {m['wall_s']:.0f} | {m['cpu_s']:.0f} | "
-                        f"{m['load_before']} | {m['load_after']} |")
-            bodies.append(md.read_text())
+        section = StudySection.read(work, part)
+        if section is not None:
+            quick = quick or section.quick
+            rows.append(f"| {TITLES[part]} | {section.finished} | {section.wall_s:.0f} | {section.cpu_s:.0f} | "
+                        f"{section.load_before} | {section.load_after} |")
+            bodies.append(section.markdown)
         else:
             rows.append(f"| {TITLES[part]} | not run | | | | |")
             bodies.append(f"## {TITLES[part]}\n\nNot run yet: `python -m benchmarks.accuracy_vs_time {COMMANDS[part]}`.\n")
@@ -160,8 +149,8 @@ def main(argv: Optional[list[str]] = None) -> None:
                     help="run folders, dataset cache, kept sections (default: outputs/study[_quick]/work)")
     ap.add_argument("--no-cuda", action="store_true",
                     help="renderer part on the CPU only (default: also on CUDA where its kernel runs)")
-    ap.add_argument("--svr-steps", default=None, help="coarse,refine training steps per run (default "
-                    f"{','.join(map(str, accuracy_vs_time_svr.DEFAULT_STEPS))})")
+    ap.add_argument("--svr-steps", default=None, help="coarse,refine training steps per run (default: the "
+                    "svr part's, which `python -m benchmarks.accuracy_vs_time_svr --help` gives)")
     ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
     ap.add_argument("--report-only", action="store_true",
                     help="run nothing: rewrite the report from the sections kept under --work")
@@ -172,14 +161,17 @@ def main(argv: Optional[list[str]] = None) -> None:
         svr_steps = parse_steps(args.svr_steps)
     except ValueError as exc:
         ap.error(str(exc))
-    docs = args.docs or ROOT / ("outputs/study_quick" if args.quick else "docs")
-    work = args.work or ROOT / ("outputs/study_quick/work" if args.quick else "outputs/study/work")
+    docs, work = study_folders(args.quick, args.docs, args.work)
     if args.report_only:
         print(f"wrote {write_report(docs, work)}")
         return
 
-    mvr.configure_runtime(threads=args.threads)
-    path = run_parts(parts, docs, work, args.quick, not args.no_cuda, svr_steps)
+    mvr.configure_runtime(threads=args.threads)  # as in each part: the report's machine section names it
+    try:
+        path = run_parts(parts, docs, work, args.quick, not args.no_cuda, svr_steps, threads=args.threads)
+    except subprocess.CalledProcessError as exc:
+        raise SystemExit(f"accuracy_vs_time: error: a part failed (exit status {exc.returncode}): "
+                         f"{' '.join(map(str, exc.cmd[1:]))}") from None
     print(f"wrote {path}")
 
 

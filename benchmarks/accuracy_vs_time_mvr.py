@@ -1,8 +1,11 @@
 """The multi-view part of the accuracy-versus-time study, run by
-``python -m benchmarks.accuracy_vs_time --parts mvr`` (``--docs DIR`` to keep docs/ as it is):
+``python -m benchmarks.accuracy_vs_time --parts mvr`` (``--docs DIR`` to keep docs/ as it is), which
+runs ``python -m benchmarks.accuracy_vs_time_mvr [--quick]`` (the plot goes to
+``<docs>/study_mvr.png``, the section to ``<work>/sections/mvr.md`` for the study's report):
 reconstruction error against time for the schedule's settings (levels, start resolution, image
 resolution, passes per level). Every run is ``python -m mvr target=torus`` (configs/mvr.yaml) with
-hydra overrides, through the same code as benchmarks/mvr_parameter_study.py. The default
+hydra overrides, in this process (``mvr.reconstruct_with_overrides``, as
+benchmarks/mvr_parameter_study.py runs its settings). The default
 (configs/mvr.yaml as it is: 8^3 to 64^3 in 4 levels, the paper's image rule, at most 10 passes per
 level) runs once; the sweeps change one setting of a cheaper base (8^3 to 32^3 in 3 levels, at most
 4 passes per level) so that the whole part fits in minutes on 2 cores. Each run starts afresh
@@ -12,10 +15,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
-from benchmarks.mvr_parameter_study import Setting, run_setting
-from benchmarks.report import Point, fmt_value, progress_log, timed, tradeoff_section
+from benchmarks.common import (Point, Setting, fmt_value, progress_log, run_study_part, study_folders,
+                               study_part_parser, timed, tradeoff_section)
+import mvr
+from mvr import reconstruct_with_overrides
 
 TARGET = "torus"
 BASE = ("schedule.start=8", "schedule.end=32", "schedule.levels=3", "optim.max_passes=4")
@@ -107,8 +112,8 @@ COLUMNS = (("hausdorff_rel", "hausdorff_rel"), ("chamfer_rel", "chamfer_rel"), (
 def measure(setting: Setting, work: Path) -> Point:
     """Runs one reconstruction afresh; a Point (seconds: CPU seconds of the whole run; error: the
     relative Hausdorff distance, nan where meshing failed)."""
-    fresh = Setting(setting.label, (*setting.overrides, "resume=false"), setting.default)
-    t = timed(lambda: run_setting(TARGET, fresh, work / setting.label.replace(" ", "_"), 10))
+    overrides = ("optim.max_passes=10", EVAL_SAMPLES, *setting.overrides, "resume=false")
+    t = timed(lambda: reconstruct_with_overrides(TARGET, work / setting.label.replace(" ", "_"), overrides).metrics)
     m = t.result
     error = float(m["hausdorff_rel"]) if m.get("hausdorff_rel") is not None else float("nan")
     chamfer = float(m["chamfer_rel"]) if m.get("chamfer_rel") is not None else float("nan")
@@ -150,3 +155,14 @@ def run(out_dir: Path, work: Path, quick: bool = False, progress: bool = True,
         unit="s", error_name="relative Hausdorff distance", logx=True, logy=True)
     return "\n".join(["## Multi-view reconstruction", "", intro, "", "### At a glance", "", glance(points, quick), "",
                       f"Changes of the base: {changes}.", "", comparison, section])
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    args = study_part_parser(__doc__).parse_args(argv)
+    docs, work = study_folders(args.quick, args.docs, args.work)
+    mvr.configure_runtime(threads=args.threads)
+    run_study_part("mvr", lambda: run(docs, work, quick=args.quick, progress=not args.no_progress), work, args.quick)
+
+
+if __name__ == "__main__":
+    main()

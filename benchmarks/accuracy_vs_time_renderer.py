@@ -1,6 +1,9 @@
 """The renderer part of the accuracy-versus-time study, run by
-``python -m benchmarks.accuracy_vs_time --parts renderer`` (``--docs DIR`` to keep docs/ as it is).
-Each sweep changes one setting from the default (64^3 grid, 128^2 images, threshold 0.5 pixel
+``python -m benchmarks.accuracy_vs_time --parts renderer`` (``--docs DIR`` to keep docs/ as it is),
+which runs ``python -m benchmarks.accuracy_vs_time_renderer [--quick] [--no-cuda]``: on the CPU, and
+on CUDA too where its fused kernel runs (a second section), the plots to
+``<docs>/study_renderer[_cuda]_<sweep>.png`` and the section to ``<work>/sections/renderer.md`` for
+the study's report. Each sweep changes one setting from the default (64^3 grid, 128^2 images, threshold 0.5 pixel
 footprint, 256 steps, conservative intersection, all effects) and measures, on one scene (the
 demo's torus and sphere, 4 views), the image error against a high-accuracy render of the analytic
 shape, the march error and the depth error against a high-accuracy render of the same grid, the
@@ -15,8 +18,10 @@ from typing import Callable, Optional
 
 import torch
 
-from benchmarks.renderer_speed import median_times_ms
-from benchmarks.report import Point, cheapest_within, fmt_value, progress_log, tradeoff_section
+import renderer
+from benchmarks.common import (Point, cheapest_within, fmt_value, median_times_ms, progress_log, run_study_part,
+                               study_folders, study_part_parser, tradeoff_section)
+import mvr
 from renderer import Cameras, DirectionalLight, SDFGrid, Scene, TraceSettings, render, torus_and_sphere
 
 VIEWS = 4
@@ -366,3 +371,26 @@ def run(out_dir: Path, quick: bool = False, device: str = "cpu", backend: str = 
     parts[at] = "\n".join([*glance, "", "(The effects sweep's error is the silhouette's, which every effect "
                            "shares: it shows what each pass costs.)", ""])
     return "\n".join(parts)
+
+
+def devices(cuda: bool = True) -> tuple[str, ...]:
+    """The part's devices: the CPU, and CUDA where ``cuda`` and its fused kernel runs."""
+    if not cuda:
+        return ("cpu",)
+
+    return ("cpu", "cuda") if renderer.backend_available("cuda")[0] else ("cpu",)
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    ap = study_part_parser(__doc__)
+    ap.add_argument("--no-cuda", action="store_true",
+                    help="on the CPU only (default: also on CUDA where its kernel runs)")
+    args = ap.parse_args(argv)
+    docs, work = study_folders(args.quick, args.docs, args.work)
+    mvr.configure_runtime(threads=args.threads)
+    run_study_part("renderer", lambda: "\n".join(run(docs, quick=args.quick, device=d, progress=not args.no_progress)
+                                                 for d in devices(not args.no_cuda)), work, args.quick)
+
+
+if __name__ == "__main__":
+    main()

@@ -10,7 +10,9 @@ is that stage's final checkpoint scored per validation object (``score_objects``
 mean over categories with a category-stratified bootstrap 95% interval over objects. A callback
 (``StudyClock``) logs each validation's IoU and the time spent, so the training time excludes
 validation and the plot shows each run's IoU over time. Run by
-``python -m benchmarks.accuracy_vs_time --parts svr`` (``--docs DIR`` to keep docs/ as it is).
+``python -m benchmarks.accuracy_vs_time --parts svr`` (``--docs DIR`` to keep docs/ as it is), which
+runs ``python -m benchmarks.accuracy_vs_time_svr [--quick] [--steps COARSE,REFINE]``: the plot goes
+to ``<docs>/study_svr.png`` and the section to ``<work>/sections/svr.md``, for the study's report.
 """
 from __future__ import annotations
 
@@ -26,13 +28,14 @@ import numpy as np
 import pytorch_lightning as pl
 from hydra.utils import instantiate
 
-from benchmarks.accuracy_ladder import bootstrap_means
-from benchmarks.report import Point, fmt_value, progress_log, timed, tradeoff_section
+from benchmarks.common import (Point, bootstrap_means, fmt_value, parse_steps, progress_log, run_study_part,
+                               study_folders, study_part_parser, timed, tradeoff_section)
+import mvr
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
 from svr.data.procedural.generator import GENERATOR_VERSION
-from svr.evaluation.metrics import iou_direct
 from svr.inference.prediction import load_model, predict_sdf
+from svr.nmr.metrics import iou_direct
 from svr.training.stages import train
 
 QUICK_CATEGORIES = ("chair", "mug")
@@ -187,7 +190,7 @@ class ObjectScores:
 
     def benchmark_mean(self) -> tuple[float, tuple[float, float]]:
         """The mean over categories of the per-category mean IoU, and its 95% interval
-        (``benchmarks.accuracy_ladder.bootstrap_means``: objects resampled within each category)."""
+        (``benchmarks.common.bootstrap_means``: objects resampled within each category)."""
         means = [self.iou[self.category == c].mean() for c in np.unique(self.category)]
         return float(np.mean(means)), bootstrap_means(self.iou, self.category)[1]
 
@@ -195,7 +198,7 @@ class ObjectScores:
 def score_objects(checkpoint: Path, datamodule) -> ObjectScores:
     """Scores a checkpoint on every validation object of ``datamodule`` (its ``val_dataloader``:
     the ``val_views`` of each object): per image the direct voxel IoU
-    (``svr.evaluation.metrics.iou_direct``, level 0, as ``val/iou``) of the prediction from that
+    (``svr.nmr.metrics.iou_direct``, level 0, as ``val/iou``) of the prediction from that
     view (``predict_sdf`` with its view index), then the mean over each object's views."""
     model = load_model(checkpoint, device="cpu")
     hs = model.half_side
@@ -357,7 +360,7 @@ def run(out_dir: Path, work: Path, quick: bool = False, steps: Optional[tuple[in
         f"object the mean direct voxel IoU (`iou_direct`, as `val/iou`) of its predictions from views "
         f"{', '.join(map(str, views))}; *val IoU* is the mean over categories of the per-category means, with a "
         f"95% bootstrap interval over objects resampled within each category "
-        f"(`benchmarks.accuracy_ladder.bootstrap_means`). Error: 1 - val IoU (error bars: the interval); time: "
+        f"(`benchmarks.common.bootstrap_means`). Error: 1 - val IoU (error bars: the interval); time: "
         f"training CPU seconds (1 thread) without the validations; the grey lines are each run's validations "
         f"(`val/iou`) over time. A difference counts as resolved only where the two intervals do not overlap. "
         f"At this budget the networks are early in training, so the IoUs are low. A longer budget: "
@@ -370,14 +373,20 @@ def run(out_dir: Path, work: Path, quick: bool = False, steps: Optional[tuple[in
     return "\n".join(["## Single-view reconstruction", "", intro, "", section])
 
 
-def parse_steps(text: Optional[str]) -> Optional[tuple[int, int]]:
-    """``"150,50"`` -> (150, 50); None stays None."""
-    if text is None:
-        return None
+def main(argv: Optional[list[str]] = None) -> None:
+    ap = study_part_parser(__doc__)
+    ap.add_argument("--steps", default=None, help="coarse,refine training steps per run (default "
+                    f"{','.join(map(str, DEFAULT_STEPS))}; 2,2 with --quick)")
+    args = ap.parse_args(argv)
     try:
-        coarse, refine = (int(x) for x in text.split(","))
-    except ValueError:
-        raise ValueError(f"steps must be two integers 'coarse,refine', got {text!r}") from None
-    if coarse < 1 or refine < 1:
-        raise ValueError(f"steps must be positive, got {text!r}")
-    return coarse, refine
+        steps = parse_steps(args.steps)
+    except ValueError as exc:
+        ap.error(str(exc))
+    docs, work = study_folders(args.quick, args.docs, args.work)
+    mvr.configure_runtime(threads=args.threads)
+    run_study_part("svr", lambda: run(docs, work, quick=args.quick, steps=steps, progress=not args.no_progress),
+                   work, args.quick)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,6 +1,6 @@
 """Accuracy of the mesh-to-NMR builder against answers known exactly (issue 30, point 3), run as
-``python -m benchmarks.mesh_build_accuracy``; writes docs/mesh_build.md and .json. Three checks
-(``svr.data.build.accuracy``): the analytic solids' meshes, clean and damaged, voxelised by the
+``python -m benchmarks.mesh_build_accuracy``; writes docs/mesh_build.md and .json. Three checks,
+pure functions of the build settings and the mesh resolution (tests/svr run them at toy size): the analytic solids' meshes, clean and damaged, voxelised by the
 builder (with and without its orientation repair) and by the benchmark protocol, against the exact
 solids' voxels; the builder's renders of the solids' meshes against the procedural renderer on the
 exact SDF; the 13 procedural categories' shapes exported as meshes and rebuilt, against the
@@ -12,20 +12,133 @@ import argparse
 import dataclasses
 import json
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
 
-from benchmarks.report import atomic_write_text, machine_info
+from benchmarks.common import atomic_write_text, machine_info
+from data.example_meshes import DAMAGES, SOLIDS, damage, shape_mesh
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
-from svr.data.build.accuracy import check_procedural, check_renders, check_solids
+from svr.data.build.dataset import build_mesh
+from svr.data.build.meshes import normalised_mesh
+from svr.data.build.settings import BuildSettings
 from svr.data.procedural.categories import NMR_PROCEDURAL_CATEGORIES
+from svr.data.procedural.csg import CSGShape
+from svr.data.procedural.generator import make_shape, render_shape, voxelize_shape
+from svr.nmr.metrics import voxel_iou
+from svr.nmr.voxels import voxelize_mesh_nmr
 
 ROOT = Path(__file__).resolve().parents[1]
 SOLID_GRID = 96       # marching-cubes grid of the solids' meshes
 PROCEDURAL_GRID = 128  # ... and of the procedural shapes' meshes
+
+
+@dataclass(frozen=True)
+class SolidCheck:
+    """One solid and damage: its triangles, the IoU of the builder's voxels and of the benchmark
+    protocol's voxels of the same mesh with the exact solid's voxels, and the builder's leak score."""
+
+    solid: str
+    damage: str
+    triangles: int
+    iou_builder: float
+    iou_protocol: float
+    leak_score: float
+
+
+@dataclass(frozen=True)
+class RenderCheck:
+    """Renders of one shape: silhouette IoU (alpha >= 128 in both) over all views, the mean
+    absolute alpha difference and the mean absolute RGB difference over the pixels both cover
+    fully (alpha 255), in 0..255 units."""
+
+    shape: str
+    triangles: int
+    silhouette_iou: float
+    alpha_error: float
+    shading_error: float
+
+
+@dataclass(frozen=True)
+class RoundTrip:
+    """A procedural shape exported as a mesh and rebuilt: voxel IoU with the procedural data's
+    voxels and its render check."""
+
+    category: str
+    seed: int
+    voxel_iou: float
+    render: RenderCheck
+
+
+def grid_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """The benchmark's IoU (``svr.nmr.metrics.voxel_iou``) of two (R, R, R) bool grids, as a float."""
+    return float(voxel_iou(a, b)[0])
+
+
+def silhouette_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """|a and b| / |a or b| of two (V, H, W) bool silhouettes, over all views at once (1 when both
+    are empty)."""
+    union = np.logical_or(a, b).sum()
+    return float(np.logical_and(a, b).sum() / union) if union else 1.0
+
+
+def compare_renders(name: str, triangles: int, ours: np.ndarray, reference: np.ndarray) -> RenderCheck:
+    """``RenderCheck`` of two (V, 4, H, W) uint8 render sets."""
+    a, b = ours[:, 3] >= 128, reference[:, 3] >= 128
+    full = (ours[:, 3] == 255) & (reference[:, 3] == 255)
+    diff = np.abs(ours[:, :3].astype(np.float64) - reference[:, :3].astype(np.float64))
+    shading = float(diff.transpose(1, 0, 2, 3)[:, full].mean()) if full.any() else float("nan")
+    alpha = float(np.abs(ours[:, 3].astype(np.float64) - reference[:, 3]).mean())
+    return RenderCheck(name, triangles, silhouette_iou(a, b), alpha, shading)
+
+
+def check_solids(settings: BuildSettings, mesh_resolution: int, solids: Sequence[str] = tuple(SOLIDS),
+                 damages: Sequence[str] = DAMAGES) -> list[SolidCheck]:
+    """Voxels of each solid's mesh, clean and damaged (see the module docstring)."""
+    out = []
+    for name in solids:
+        shape = SOLIDS[name]()
+        truth = voxelize_shape(shape, rule="protocol")
+        vertices, faces = shape_mesh(shape, mesh_resolution)
+        for kind in damages:
+            v, f = damage(vertices, faces, kind)
+            _, _, vox, _ = build_mesh(normalised_mesh(v, f), settings)
+            # The protocol sees the mesh as the builder does: normalised.
+            mesh = normalised_mesh(v, f)
+            protocol = voxelize_mesh_nmr(mesh.vertices, mesh.faces)
+            out.append(SolidCheck(name, kind, len(f), grid_iou(vox.voxels, truth), grid_iou(protocol, truth),
+                                  vox.leak_score))
+    return out
+
+
+def check_render(name: str, shape: CSGShape, settings: BuildSettings, mesh_resolution: int) -> tuple[RenderCheck, np.ndarray]:
+    """The builder's renders of a shape's mesh against ``render_shape`` of the exact shape, both in
+    the neutral colour; also returns the builder's voxels."""
+    v, f = shape_mesh(shape, mesh_resolution)
+    _, images, vox, _ = build_mesh(normalised_mesh(v, f), settings)
+    reference = render_shape(shape, None, supersample=settings.supersample, image_size=settings.image_size,
+                             num_views=settings.views)
+    return compare_renders(name, len(f), images, reference), vox.voxels
+
+
+def check_renders(settings: BuildSettings, mesh_resolution: int, solids: Sequence[str] = tuple(SOLIDS)) -> list[RenderCheck]:
+    """``check_render`` of each analytic solid."""
+    return [check_render(name, SOLIDS[name](), settings, mesh_resolution)[0] for name in solids]
+
+
+def check_procedural(settings: BuildSettings, mesh_resolution: int, categories: Sequence[str],
+                     seeds: Sequence[int] = (0,)) -> list[RoundTrip]:
+    """Procedural shapes (``make_shape(category, [seed])``) exported as meshes and rebuilt."""
+    out = []
+    for category in categories:
+        for seed in seeds:
+            shape = make_shape(category, [int(seed)])
+            render, voxels = check_render(category, shape, settings, mesh_resolution)
+            out.append(RoundTrip(category, int(seed), grid_iou(voxels, voxelize_shape(shape, rule="protocol")), render))
+    return out
 
 
 def measure(solid_grid: int = SOLID_GRID, procedural_grid: int = PROCEDURAL_GRID,
@@ -64,13 +177,13 @@ def markdown(result: dict, command: str) -> str:
     return f"""# Mesh-to-NMR builder: accuracy against known answers
 
 Made by `{command}` (benchmarks/mesh_build_accuracy.py, {result['seconds']} s; the checks are
-svr/data/build/accuracy.py, at toy size in tests/svr/test_build_accuracy.py). Default settings of
+benchmarks/mesh_build_accuracy.py, at toy size in tests/svr/data/build/test_build_accuracy.py). Default settings of
 configs/build.yaml. Speed: [mesh_build_speed.md](mesh_build_speed.md). Usage: README, "Your own data".
 
 ## Voxels of analytic solids, clean and damaged
 
 Each solid (normalised as NMR's objects: centred, longest side 1) is meshed by marching cubes of its
-exact SDF on a {result['solid_grid']}^3 grid, damaged (svr/data/build/examples.py: `hole` removes the
+exact SDF on a {result['solid_grid']}^3 grid, damaged (data/example_meshes.py: `hole` removes the
 faces within 0.12 of the point farthest along (1, 1, 1), about 4 voxels across; `flipped` reverses 2%
 of the faces at random; `scrambled` reverses each face with probability 1/2; `inner_shell` adds a copy moved 0.04 inwards along the vertex normals, same
 orientation; `all` does hole, flipped and inner_shell), and voxelised at 32^3. IoU against the exact solid's voxels by

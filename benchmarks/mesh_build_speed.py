@@ -20,12 +20,12 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from benchmarks.report import atomic_write_text, machine_info
+from benchmarks.common import atomic_write_text, machine_info
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.processes import default_workers
 from sdfcommon.tooling.settings import build_settings
 from svr.data.build.dataset import build_dataset
-from svr.data.build.examples import procedural_mesh, write_obj
+from data.example_meshes import procedural_mesh, write_obj
 from svr.data.procedural.categories import NMR_PROCEDURAL_CATEGORIES
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -2,7 +2,7 @@
 [--extra OVERRIDE ...]``: the torus (the paper's 0.015637) and other shapes, each reconstructed with
 the default settings of ``python -m mvr`` (configs/mvr.yaml). Each shape runs as
 ``python -m mvr target=<shape> out_dir=<work>/<shape>`` would, in this process
-(``benchmarks.report.run_mvr``), one at a time (a finished run is reused: delete its folder to redo
+(``mvr.reconstruct_with_overrides``), one at a time (a finished run is reused: delete its folder to redo
 it); the table goes to docs/mvr_shapes.md and each run's views.png to
 docs/mvr_views_<shape>.png.
 """
@@ -15,8 +15,9 @@ import shutil
 import time
 from pathlib import Path
 
-from benchmarks.report import atomic_write_text, machine_info, run_mvr
+from benchmarks.common import atomic_write_text, machine_info
 import mvr
+from mvr import reconstruct_with_overrides
 
 DEFAULT_SHAPES = ("torus", "double_torus", "blob", "rounded_box")
 PAPER = {"torus": 0.015637}
@@ -27,7 +28,7 @@ def run_shape(shape: str, out_dir: Path, extra: list[str]) -> tuple[dict, float]
     metrics_file = out_dir / "metrics.json"
     load = os.getloadavg()[0]
     if not metrics_file.is_file():
-        run_mvr(shape, out_dir, extra)
+        reconstruct_with_overrides(shape, out_dir, extra)
         load = (load + os.getloadavg()[0]) / 2
     return json.loads(metrics_file.read_text()), load
 

@@ -16,18 +16,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from benchmarks.report import Point, atomic_write_text, machine_info, markdown_table, plot_tradeoff, run_mvr
+from benchmarks.common import Point, Setting, atomic_write_text, machine_info, markdown_table, plot_tradeoff
 import mvr
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One run of a study: its label and its hydra overrides of configs/mvr.yaml."""
-
-    label: str
-    overrides: tuple[str, ...] = ()
-    default: bool = False
-
+from mvr import reconstruct_with_overrides
 
 FINE32 = ("schedule.resolutions=[8,16,32]",)
 
@@ -73,7 +64,8 @@ def _studies() -> dict[str, Study]:
 
 def run_setting(target: str, setting: Setting, out_dir: Path, passes: int) -> dict:
     """Runs one reconstruction: configs/mvr.yaml + the reduced scale + the setting's overrides."""
-    return run_mvr(target, out_dir, [f"optim.max_passes={passes}", "evaluation.samples=20000", *setting.overrides])
+    overrides = [f"optim.max_passes={passes}", "evaluation.samples=20000", *setting.overrides]
+    return reconstruct_with_overrides(target, out_dir, overrides).metrics
 
 
 def run_study(study: Study, target: str, work: Path, docs: Path, passes: int,

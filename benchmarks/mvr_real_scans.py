@@ -30,16 +30,16 @@ from typing import Optional, Sequence
 import numpy as np
 import trimesh
 
-from benchmarks.report import load_average, machine_info, run_mvr
+from benchmarks.common import load_average, machine_info
 import mvr
-from mvr import MESH_FORMATS, SHAPES
-from mvr.settings import compose_config, reconstruct_kwargs
+from mvr import MESH_FORMATS, SHAPES, reconstruct_with_overrides
 from mvr.error_map import error_picture
 from mvr.metrics import one_sided_distances
 from mvr.reconstruct import default_scene
-from sdfcommon.tooling.settings import build_settings
+from mvr.settings import compose_config, reconstruct_kwargs
 from sdfcommon.tooling import outputs
 from sdfcommon.tooling.outputs import ensure_output_dir
+from sdfcommon.tooling.settings import build_settings
 
 CONFIGS = {"default": (), "paper": ("mvr/preset=paper",)}
 # Paper section 5, symmetric Hausdorff relative to the bounding box (SPEC.md section 2).
@@ -241,7 +241,7 @@ def run_one(mesh: PreparedMesh, config: str, out: Path, fresh: bool, error_scale
         if run_dir.exists():
             shutil.rmtree(run_dir)
         load_before = os.getloadavg()[0]
-        run_mvr(mesh.target, run_dir, overrides)
+        reconstruct_with_overrides(mesh.target, run_dir, overrides)
         print(f"  load average {load_before:.1f} -> {os.getloadavg()[0]:.1f}", flush=True)
     metrics = json.loads(metrics_file.read_text())
     h99 = None

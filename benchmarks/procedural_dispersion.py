@@ -20,18 +20,15 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
-import torch
-from hydra.utils import instantiate
 
-from benchmarks.report import atomic_write_text, machine_info
-from sdfcommon.tooling.commands import compose
+from benchmarks.common import (DATA_PRESETS, all_voxels, atomic_write_text, bootstrap_interval, iou_matrix,
+                               lookup_ceiling, machine_info, procedural_data)
 from sdfcommon.tooling.outputs import write_png
 from sdfcommon.tooling.pictures import labelled_grid
 from svr.evaluation.baselines import LABELS, score_baselines
 from svr.evaluation.tables import EvaluationResult
 
 ROOT = Path(__file__).resolve().parents[1]
-PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<name>.yaml
 HALF_SIDE = 0.6        # configs/model/*.yaml: the SDF grid's box (for the oracle)
 GRID_RESOLUTION = 64
 SHEET_OBJECTS = 12     # objects per category on the contact sheet
@@ -43,47 +40,12 @@ COLUMN_LABELS = {"lookup": "lookup ceiling", "retrieval": LABELS["retrieval"], "
                  "diversity": "diversity (mean pairwise IoU)"}
 
 
-def iou_matrix(a: np.ndarray, b: np.ndarray, chunk: int = 512) -> np.ndarray:
-    """Voxel IoU of every pair: (Q, ...) bool and (N, ...) bool -> (Q, N) float64 (1 where both are
-    empty)."""
-    fa = torch.from_numpy(np.ascontiguousarray(a, dtype=bool).reshape(len(a), -1)).float()
-    fb = torch.from_numpy(np.ascontiguousarray(b, dtype=bool).reshape(len(b), -1)).float()
-    if fa.shape[1] != fb.shape[1]:
-        raise ValueError(f"a and b must hold grids of one size, got {fa.shape[1]} and {fb.shape[1]} cells")
-    nb = fb.sum(1)
-    out = np.empty((len(fa), len(fb)))
-    for s in range(0, len(fa), chunk):
-        q = fa[s:s + chunk]
-        inter = q @ fb.T
-        union = q.sum(1, keepdim=True) + nb[None, :] - inter
-        out[s:s + chunk] = torch.where(union > 0, inter / union.clamp(min=1), torch.ones_like(inter)).double().numpy()
-    return out
-
-
-def lookup_ceiling(test: np.ndarray, train: np.ndarray) -> np.ndarray:
-    """Per test object, the highest voxel IoU of any training object: (Q,) float64."""
-    return iou_matrix(test, train).max(1)
-
-
 def mean_pairwise_iou(voxels: np.ndarray) -> float:
     """The mean voxel IoU over all pairs of distinct objects (needs two or more)."""
     if len(voxels) < 2:
         raise ValueError(f"voxels must hold at least 2 objects, got {len(voxels)}")
     m = iou_matrix(voxels, voxels)
     return float((m.sum() - np.trace(m)) / (len(m) * (len(m) - 1)))
-
-
-def bootstrap_interval(values: np.ndarray, samples: int = 2000, seed: int = 0) -> tuple[float, float]:
-    """The 95% percentile bootstrap interval of the mean of ``values``."""
-    values = np.asarray(values, dtype=np.float64)
-    rng = np.random.default_rng(seed)
-    means = values[rng.integers(len(values), size=(samples, len(values)))].mean(1)
-    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
-
-
-def all_voxels(dataset) -> np.ndarray:
-    """Every object's voxels of a split: (N, R, R, R) bool."""
-    return np.stack([dataset.voxels(g).numpy() for g in range(len(dataset))])
 
 
 def dispersion(preset: str = "bench", cache_dir: Optional[Path] = None, overrides: Sequence[str] = (),
@@ -99,9 +61,7 @@ def dispersion(preset: str = "bench", cache_dir: Optional[Path] = None, override
         the test split's dataset).
     """
     extra = [f"data.cache_dir={cache_dir}"] if cache_dir is not None else []
-    cfg = compose("eval", [f"data={PRESETS[preset]}", f"data.progress={progress}", *extra, *overrides])
-    dm = instantiate(cfg.data)
-    dm.prepare_data()
+    dm = procedural_data(preset, [f"data.progress={progress}", *extra, *overrides])
     test, train = dm.dataset("test"), dm.dataset("train")
     names = [n for _, n in test.categories]
     test_vox, train_vox = all_voxels(test), all_voxels(train)
@@ -195,7 +155,7 @@ examples:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, epilog=EXAMPLES,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--preset", choices=tuple(PRESETS), default="bench")
+    parser.add_argument("--preset", choices=tuple(DATA_PRESETS), default="bench")
     parser.add_argument("--categories", nargs="+", default=None, help="names or ids (default: the preset's)")
     parser.add_argument("--train", type=int, default=None, help="training objects per category (default: preset's)")
     parser.add_argument("--test", type=int, default=None, help="test objects per category (default: preset's)")

@@ -12,16 +12,15 @@ import argparse
 import json
 import os
 import platform
-import statistics
 import subprocess
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 
 import renderer
+from benchmarks.common import median_times_ms, peak_rss_kib, reset_peak_rss
 from renderer import Cameras, Scene, SDFGrid, render, shade_trace, sphere_trace
 from sdfcommon.tooling.outputs import write_text
 
@@ -109,28 +108,6 @@ def trace_synced(grid: SDFGrid, cams: Cameras, backend: str) -> None:
         torch.cuda.synchronize(grid.device)
 
 
-def median_times_ms(fns: dict, repeats: int) -> dict[str, float]:
-    """Median wall time and CPU time (ms) of each function: ``name`` and ``name_cpu``.
-
-    One warm-up each (compiles or loads the kernels, fills the allocator), then the functions take
-    turns so that a change of the machine's load hits all of them alike. CPU time is this
-    process's user + system time over all its threads (torch's and numba's).
-    """
-    for fn in fns.values():
-        fn()
-    wall: dict[str, list[float]] = {name: [] for name in fns}
-    cpu: dict[str, list[float]] = {name: [] for name in fns}
-    for _ in range(repeats):
-        for name, fn in fns.items():
-            start, start_cpu = time.perf_counter(), time.process_time()
-            fn()
-            wall[name].append(time.perf_counter() - start)
-            cpu[name].append(time.process_time() - start_cpu)
-    out = {name: 1e3 * statistics.median(t) for name, t in wall.items()}
-    out.update({f"{name}_cpu": 1e3 * statistics.median(t) for name, t in cpu.items()})
-    return out
-
-
 def time_config(cfg: Config, repeats: int, device: torch.device = torch.device("cpu")) -> dict[str, float]:
     """Medians (ms) of the march per ``march_backends`` column and of forward + backward per
     ``render_variants`` column on ``device`` (on CUDA also the host's fused CPU kernels, "host"),
@@ -169,14 +146,6 @@ def measure_cuda_memory(cfg: Config, backend: str, stage2: str, device: torch.de
 
 
 # ---------------------------------------------------------------------------- memory (subprocess)
-def _status_kib(field: str) -> int:
-    with open("/proc/self/status") as fh:
-        for line in fh:
-            if line.startswith(field + ":"):
-                return int(line.split()[1])
-    raise KeyError(field)
-
-
 def measure_memory(cfg: Config, backend: str, stage2: str) -> dict[str, float | str]:
     """Peak extra resident memory (MiB) of one forward + backward, in this (fresh) process."""
     import gc
@@ -185,14 +154,12 @@ def measure_memory(cfg: Config, backend: str, stage2: str) -> dict[str, float | 
     values, cams = scene_for(cfg)
     forward_backward(values[:1].clone(), Cameras.look_at([[0.0, 0.0, 2.5]], image_size=8), backend, stage2)
     gc.collect()
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")  # resets VmHWM to the current RSS
-        before = _status_kib("VmRSS")
+    before = reset_peak_rss()
+    if before is not None:
         forward_backward(values, cams, backend, stage2)
-        peak = _status_kib("VmHWM")
+        peak = peak_rss_kib()
         method = "VmHWM"
-    except OSError:
+    else:
         before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         forward_backward(values, cams, backend, stage2)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

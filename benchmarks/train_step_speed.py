@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import os
 import statistics
 import subprocess
 import sys
@@ -22,49 +21,34 @@ import time
 from pathlib import Path
 from typing import Callable, Optional
 
-HERE = Path(__file__).resolve()
-ROOT = HERE.parents[1]
+import torch
+from hydra import compose, initialize_config_dir
+from hydra.utils import instantiate
+
+import svr
+from benchmarks.common import atomic_write_text, machine_info, peak_rss_kib, reset_peak_rss
+from sdfcommon.tooling.host_memory import keep_freed_memory
+from sdfcommon.tooling.settings import build_settings
+from svr import losses
+from svr.models.checkpoint_layout import STAGES
+from svr.training.stages import build_module
+
+ROOT = Path(__file__).resolve().parents[1]
+# The configs of the checkout measured, beside its svr package: run in a --baseline checkout, that
+# checkout's own (the installed configs package, sdfdiff_configs, is the installed checkout's).
+CONFIGS = Path(svr.__file__).resolve().parents[1] / "configs"
 
 PHASES = ("data", "encoder", "decoder", "refiner", "render", "regularisers", "optimiser")
-STAGE_STEPS = ("step coarse", "step refine", "step joint")
-
-
-def _code_root(argv: list[str]) -> Path:
-    """``--code PATH`` (the checkout whose svr/renderer/configs are measured) before importing them."""
-    if "--code" in argv:
-        return Path(argv[argv.index("--code") + 1]).resolve()
-    return ROOT
+STAGE_STEPS = tuple(f"step {stage}" for stage in STAGES)
 
 
 # ---------------------------------------------------------------------------- measuring (one process)
-def _status_kib(field: str) -> Optional[int]:
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith(field + ":"):
-                    return int(line.split()[1])
-    except OSError:
-        return None
-    return None
-
-
-def _reset_peak_rss() -> Optional[int]:
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-    except OSError:
-        return None
-    return _status_kib("VmRSS")
-
-
-def _sync(device) -> None:
-    import torch
-
+def _sync(device: torch.device) -> None:
     if device.type == "cuda":
         torch.cuda.synchronize(device)
 
 
-def measure_time(fn: Callable[[], None], repeats: int, device) -> float:
+def measure_time(fn: Callable[[], None], repeats: int, device: torch.device) -> float:
     """Median wall ms of ``fn`` over ``repeats`` calls after one warm-up call."""
     fn()
     _sync(device)
@@ -78,13 +62,11 @@ def measure_time(fn: Callable[[], None], repeats: int, device) -> float:
     return statistics.median(times)
 
 
-def measure_memory(fn: Callable[[], None], device) -> float:
+def measure_memory(fn: Callable[[], None], device: torch.device) -> float:
     """Peak extra memory (MiB) of one call of ``fn`` after a warm-up call: CUDA's peak allocated
     memory, or on the CPU the peak resident set (VmHWM reset through /proc/self/clear_refs; NaN
     where that is not available). Meaningful on the CPU only while freed memory goes back to the
     system (glibc's defaults): measured before ``keep_freed_memory``."""
-    import torch
-
     fn()
     _sync(device)
     gc.collect()
@@ -94,33 +76,18 @@ def measure_memory(fn: Callable[[], None], device) -> float:
         fn()
         _sync(device)
         return (torch.cuda.max_memory_allocated(device) - before) / 2**20
-    before = _reset_peak_rss()
+    before = reset_peak_rss()
     if before is None:
         return float("nan")
     fn()
-    after = _status_kib("VmHWM")
+    after = peak_rss_kib()
     return float("nan") if after is None else (after - before) / 1024.0
 
 
 def run_phases(overrides: list[str], device_name: str, repeats: int, stages: bool = True) -> dict:
     """Every phase of ``PHASES`` (and the stages' whole steps) for the composed config, in this process."""
-    import torch
-    from hydra import compose, initialize_config_dir
-    from hydra.utils import instantiate
-
-    from svr import losses
-    try:  # this checkout's layout: modules built from typed settings
-        from sdfcommon.tooling.settings import build_settings
-        from svr.training.stages import build_module
-    except ImportError:  # an older checkout (--baseline): built from the composed config
-        from svr.training import build_module
-
-        def build_settings(cfg):
-            return cfg
-
     device = torch.device(device_name)
-    with initialize_config_dir(config_dir=str(Path(sys.modules["svr"].__file__).resolve().parents[1] / "configs"),
-                               version_base=None):
+    with initialize_config_dir(config_dir=str(CONFIGS), version_base=None):
         cfg = compose(config_name="train", overrides=list(overrides))
     torch.manual_seed(int(cfg.seed))
     dm = instantiate(cfg.data)
@@ -185,7 +152,7 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     fns = dict(data=data, encoder=encoder, decoder=decoder, refiner=refiner, render=render,
                regularisers=regularisers, optimiser=optimiser)
     if stages:
-        for stage in ("coarse", "refine", "joint"):
+        for stage in STAGES:
             mod = build_module(settings, net, stage, dm).to(device)
             mod.train()
             stage_opt = mod.optimizer_factory([p for p in mod.parameters() if p.requires_grad])
@@ -197,15 +164,8 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
 
             fns[f"step {stage}"] = step
     results: dict[str, dict[str, float]] = {name: {"peak_mib": measure_memory(fn, device)} for name, fn in fns.items()}
-    try:  # what svr.training.stages.train does first, where the checkout has it (older ones: svr.host_memory)
-        try:
-            from sdfcommon.tooling.host_memory import keep_freed_memory
-        except ImportError:
-            from svr.host_memory import keep_freed_memory
-    except ImportError:
-        allocator = "glibc defaults"
-    else:
-        allocator = "keep_freed_memory" if keep_freed_memory() else "glibc defaults"
+    # What svr.training.stages.train does first: the times are a training's, the memory above is not.
+    allocator = "keep_freed_memory" if keep_freed_memory() else "glibc defaults"
     for name, fn in fns.items():
         results[name]["ms"] = measure_time(fn, repeats, device)
         if name.startswith("step "):
@@ -252,7 +212,7 @@ def _setup_line(res: dict) -> str:
     return (f"batch {res['batch']}, {res['views']} views, renders {res['render_size']}^2, grid {res['grid']}^3, "
             f"parameters: encoder {p['encoder']:,}, decoder {p['decoder']:,}, refiner {p['refiner']:,}; "
             f"torch threads {res['torch_threads']}, device {res['device']}, host allocator: "
-            f"{res.get('allocator', 'glibc defaults')}")
+            f"{res['allocator']}")
 
 
 def _merge(runs: list[dict]) -> dict:
@@ -266,13 +226,13 @@ def _merge(runs: list[dict]) -> dict:
     return out
 
 
-def _subprocess(code: Path, overrides: list[str], args) -> dict:
-    # This file by its path, not ``-m``: the child imports svr, renderer and mvr from ``code`` only
-    # (``_use_only``), and a baseline checkout need not have this benchmark.
-    cmd = [sys.executable, str(HERE), "--code", str(code), "--json", "--device", args.device,
-           "--repeats", str(args.repeats), *overrides]
-    env = dict(os.environ, PYTHONPATH=str(code))
-    out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=code, env=env)
+def measure_checkout(code: Path, overrides: list[str], device: str, repeats: int) -> dict:
+    """``run_phases`` in a fresh process of the checkout at ``code``: its own copy of this benchmark
+    (``python -m benchmarks.train_step_speed --json`` run in that folder, which imports that
+    checkout's svr, renderer and configs before the installed ones)."""
+    cmd = [sys.executable, "-m", "benchmarks.train_step_speed", "--json", "--device", device,
+           "--repeats", str(repeats), *overrides]
+    out = subprocess.run(cmd, check=True, capture_output=True, text=True, cwd=code)
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
@@ -302,9 +262,10 @@ memory:
   /proc/self/clear_refs; "n/a" where that is not available).
 
 --baseline PATH:
-  Runs the same measurements with the code and configs of another checkout (e.g. a git worktree
-  of main before a change) in alternating subprocesses (--rounds each) and reports both and their
-  ratio: a speed claim against a baseline measured in the same run.
+  Runs the same measurements with the code and configs of another checkout of this layout (e.g. a
+  git worktree of main before a change), each checkout by its own copy of this benchmark, in
+  alternating subprocesses (--rounds each) and reports both and their ratio: a speed claim against
+  a baseline measured in the same run.
 """
 
 
@@ -320,50 +281,44 @@ def main(argv: Optional[list[str]] = None) -> None:
     parser.add_argument("--out", type=Path, default=None, help="report path (default docs/bench_train_step[_cuda].md)")
     parser.add_argument("--no-write", action="store_true", help="print only")
     parser.add_argument("--json", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--code", type=Path, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
     if args.rounds < 1:
         parser.error(f"--rounds must be >= 1, got {args.rounds}")
     overrides = args.overrides or ["experiment=demo"]
-    if args.device == "cuda":
-        import torch
-
-        if not torch.cuda.is_available():
-            parser.error("--device cuda: no CUDA device is visible to torch")
+    if args.device == "cuda" and not torch.cuda.is_available():
+        parser.error("--device cuda: no CUDA device is visible to torch")
     if args.json:
         print(json.dumps(run_phases(overrides, args.device, args.repeats)))
         return
     if args.baseline is not None:
         base = args.baseline.resolve()
-        if not (base / "svr").is_dir() or not (base / "configs" / "train.yaml").is_file():
-            parser.error(f"--baseline {base}: not a checkout of this project (no svr/ and configs/train.yaml)")
+        if not all((base / part).is_file() for part in ("svr/__init__.py", "configs/train.yaml",
+                                                          "benchmarks/train_step_speed.py")):
+            parser.error(f"--baseline {base}: not a checkout of this project's layout (no svr/, "
+                         "configs/train.yaml and benchmarks/train_step_speed.py)")
         before_runs, after_runs = [], []
         for r in range(args.rounds):
             print(f"round {r + 1}/{args.rounds}: baseline {base}", file=sys.stderr, flush=True)
-            before_runs.append(_subprocess(base, overrides, args))
+            before_runs.append(measure_checkout(base, overrides, args.device, args.repeats))
             print(f"round {r + 1}/{args.rounds}: this checkout", file=sys.stderr, flush=True)
-            after_runs.append(_subprocess(ROOT, overrides, args))
+            after_runs.append(measure_checkout(ROOT, overrides, args.device, args.repeats))
         before, after = _merge(before_runs), _merge(after_runs)
         body = (f"Before: `{base}` ({_git_rev(base)}); {_setup_line(before)}.\n\n"
                 f"After: this checkout ({_git_rev(ROOT)}); {_setup_line(after)}.\n\n"
                 f"{compare_table(before, after)}\n")
     else:
-        res = _subprocess(ROOT, overrides, args) if args.code is None else run_phases(overrides, args.device,
-                                                                                      args.repeats)
+        res = run_phases(overrides, args.device, args.repeats)
         body = f"{_setup_line(res)}.\n\n{table(res)}\n"
     command = "python -m benchmarks.train_step_speed " + " ".join(argv)
     text = (f"# Single-view training step, phase by phase\n\n`{command.strip()}` "
             f"(config overrides: `{' '.join(overrides)}`; medians of {args.repeats} calls"
             + (f", median over {args.rounds} alternating rounds per checkout" if args.baseline else "")
-            + f"; written {time.strftime('%Y-%m-%d %H:%M')}).\n\n{body}\n{_machine()}\n")
+            + f"; written {time.strftime('%Y-%m-%d %H:%M')}).\n\n{body}\n{machine_info()}\n")
     print(text)
     if not args.no_write:
         out = args.out or ROOT / "docs" / ("bench_train_step_cuda.md" if args.device == "cuda" else "bench_train_step.md")
-        sys.path.insert(0, str(ROOT))
-        from benchmarks.report import atomic_write_text
-
         atomic_write_text(out, text)
         print(f"wrote {out}", file=sys.stderr)
 
@@ -376,23 +331,5 @@ def _git_rev(path: Path) -> str:
         return "not a git checkout"
 
 
-def _machine() -> str:
-    sys.path.insert(0, str(ROOT))
-    from benchmarks.report import machine_info
-
-    return machine_info()
-
-
-def _use_only(code: Path) -> None:
-    """Imports svr, renderer and mvr from ``code`` alone: ahead on sys.path, and without the
-    editable install's import hook, which would otherwise supply modules that checkout lacks
-    from this one."""
-    sys.path.insert(0, str(code))
-    if code != ROOT:
-        sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in type(f).__module__.lower()
-                            and "editable" not in getattr(f, "__name__", "").lower()]
-
-
 if __name__ == "__main__":
-    _use_only(_code_root(sys.argv[1:]))
     main()

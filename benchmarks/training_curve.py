@@ -15,9 +15,8 @@ import csv
 from pathlib import Path
 from typing import Optional
 
-from benchmarks.report import atomic_write_text
-
-STAGES = ("coarse", "refine", "joint")
+from benchmarks.common import atomic_write_text, save_figure
+from svr.models.checkpoint_layout import STAGES
 
 
 def _float(value: str) -> Optional[float]:
@@ -81,7 +80,7 @@ def plot(rows: list[dict], baselines: dict[str, float], path: Path, title: str,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # heavy: as above
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.0))
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=110)
     for stage in STAGES:
         pts = [(r["hours"], r["iou"]) for r in rows if r["stage"] == stage and r["hours"] is not None]
         if pts:
@@ -98,10 +97,7 @@ def plot(rows: list[dict], baselines: dict[str, float], path: Path, title: str,
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)
 
 
 def _baseline(text: str) -> tuple[str, float]:

@@ -1,12 +1,12 @@
-"""benchmarks.accuracy_ladder: the bootstrap intervals against hand computations, and the ladder's
-table from per-object scores (the trained rows themselves: tests/svr/test_models.py)."""
+"""benchmarks.accuracy_ladder: the bootstrap intervals (benchmarks.common) against hand computations,
+and the ladder's table from per-object scores (the trained rows themselves: tests/svr/models/test_models.py)."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from benchmarks.accuracy_ladder import (ROWS, bootstrap_means, calibration_of, ladder, markdown_table, read_per_object,
-                                       reading)
+from benchmarks.accuracy_ladder import ROWS, calibration_of, ladder, markdown_table, read_per_object, reading
+from benchmarks.common import bootstrap_means
 
 
 def test_constant_scores_give_zero_width_intervals():

@@ -1,5 +1,6 @@
 """The accuracy-versus-time study (benchmarks/accuracy_vs_time*.py): its helpers, and every part's code path
-at toy sizes through the one command's driver (no timing asserted). The full study is `slow`."""
+at toy sizes through the one command's driver, each part a command of its own (no timing asserted). The
+full study is `slow`."""
 from __future__ import annotations
 
 import json
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmarks import accuracy_vs_time, accuracy_vs_time_renderer, accuracy_vs_time_svr
-from benchmarks.report import Point, cheapest_within, fmt_value, markdown_table, pareto_front, reading
+from benchmarks.common import Point, cheapest_within, fmt_value, markdown_table, pareto_front, parse_steps, reading
 
 
 def test_pareto_front():
@@ -43,10 +44,10 @@ def test_bad_arguments_name_themselves():
     for bad in ("", "renderer,gpu"):
         with pytest.raises(ValueError, match="parts"):
             accuracy_vs_time.parse_parts(bad)
-    assert accuracy_vs_time_svr.parse_steps("30,10") == (30, 10) and accuracy_vs_time_svr.parse_steps(None) is None
+    assert parse_steps("30,10") == (30, 10) and parse_steps(None) is None
     for bad in ("30", "a,b", "0,5"):
         with pytest.raises(ValueError, match="steps"):
-            accuracy_vs_time_svr.parse_steps(bad)
+            parse_steps(bad)
     with pytest.raises(ValueError, match="views"):
         accuracy_vs_time_svr.Run("x", views=25)
     with pytest.raises(ValueError, match="render_size"):

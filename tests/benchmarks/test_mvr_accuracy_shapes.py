@@ -22,7 +22,7 @@ def test_toy_run_writes_the_table_and_reuses_the_run(tmp_path, monkeypatch):
     def no_rerun(*args, **kwargs):
         raise AssertionError("a finished run must be reused")
 
-    monkeypatch.setattr(module, "run_mvr", no_rerun)
+    monkeypatch.setattr(module, "reconstruct_with_overrides", no_rerun)
     module.main(argv)
     def errors(md):  # the row's hausdorff_rel and chamfer_rel (the load average may differ)
         return [line.split("|")[2:4] for line in md.splitlines() if line.startswith("| torus |")]

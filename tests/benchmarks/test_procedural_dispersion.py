@@ -1,5 +1,5 @@
-"""benchmarks.procedural_dispersion: figures known by construction on toy voxels, then the command
-on a toy dataset."""
+"""benchmarks.procedural_dispersion and the lookup ceiling it shares with the accuracy ladder
+(benchmarks.common): figures known by construction on toy voxels, then the command on a toy dataset."""
 from __future__ import annotations
 
 import json
@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from benchmarks.procedural_dispersion import (bootstrap_interval, iou_matrix, lookup_ceiling, main,
-                                              mean_pairwise_iou)
+from benchmarks.common import bootstrap_interval, iou_matrix, lookup_ceiling
+from benchmarks.procedural_dispersion import main, mean_pairwise_iou
 
 
 def _boxes(n: int, size: int = 4) -> np.ndarray:

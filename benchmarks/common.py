@@ -1,23 +1,32 @@
-"""Shared pieces of the benchmarks: Pareto fronts, plots, tables, a reading of the results,
-machine info, and the one way they run a multi-view reconstruction (``run_mvr``)."""
+"""What several benchmarks share, the one module of benchmarks/ that the others import (each
+benchmark is a leaf: it imports the library packages and this module, never another benchmark;
+tests/benchmarks/test_leaves.py checks it): Pareto fronts, plots, tables and a reading of the
+results; machine info and timing; peak memory of this process; bootstrap intervals; the procedural
+presets' data and their lookup ceiling; the sections of the accuracy-versus-time study."""
 from __future__ import annotations
 
+import argparse
+import datetime
 import io
+import json
 import math
 import os
 import platform
+import statistics
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
 
-import numpy
+import numpy as np
 import torch
+from hydra.utils import instantiate
 
-from mvr import reconstruct
-from mvr.settings import compose_config, reconstruct_kwargs
+from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.outputs import atomic_write, write_text
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @dataclass
@@ -31,6 +40,16 @@ class Point:
     default: bool = False
     extra: dict = field(default_factory=dict)
     error_interval: Optional[tuple[float, float]] = None
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One run of a study: its label and its hydra overrides (of configs/mvr.yaml, say), and whether
+    it is the default setting."""
+
+    label: str
+    overrides: tuple[str, ...] = ()
+    default: bool = False
 
 
 def pareto_front(points: Sequence[Point]) -> list[bool]:
@@ -50,19 +69,6 @@ def pareto_front(points: Sequence[Point]) -> list[bool]:
 def atomic_write_text(path: Path, text: str) -> None:
     """Writes UTF-8 text to ``path`` atomically (``sdfcommon.tooling.outputs.write_text``)."""
     write_text(path, text)
-
-
-def run_mvr(target: str, out_dir: Path, overrides: Sequence[str] = ()) -> dict:
-    """One multi-view reconstruction in this process, with the settings of
-    ``python -m mvr target=<target> out_dir=<out_dir> progress=false <overrides>`` (configs/mvr.yaml,
-    composed and instantiated as the command does). The caller sets the process-wide runtime first
-    (``mvr.configure_runtime``, as the command does from ``runtime.*``).
-
-    Returns:
-        the run's metrics (what it writes to ``<out_dir>/metrics.json``).
-    """
-    cfg = compose_config([f"target={target}", f"out_dir={out_dir}", "progress=false", *overrides])
-    return reconstruct(target, out_dir, **reconstruct_kwargs(cfg)).metrics
 
 
 def plot_tradeoff(points: Sequence[Point], path: Path, title: str, xlabel: str, ylabel: str,
@@ -283,6 +289,28 @@ def timed(fn: Callable[[], Any]) -> Timed:
     return Timed(result, wall, cpu, (load0 + _load1()) / 2)
 
 
+def median_times_ms(fns: dict, repeats: int) -> dict[str, float]:
+    """Median wall time and CPU time (ms) of each function: ``name`` and ``name_cpu``.
+
+    One warm-up each (compiles or loads the kernels, fills the allocator), then the functions take
+    turns so that a change of the machine's load hits all of them alike. CPU time is this
+    process's user + system time over all its threads (torch's and numba's).
+    """
+    for fn in fns.values():
+        fn()
+    wall: dict[str, list[float]] = {name: [] for name in fns}
+    cpu: dict[str, list[float]] = {name: [] for name in fns}
+    for _ in range(repeats):
+        for name, fn in fns.items():
+            start, start_cpu = time.perf_counter(), time.process_time()
+            fn()
+            wall[name].append(time.perf_counter() - start)
+            cpu[name].append(time.process_time() - start_cpu)
+    out = {name: 1e3 * statistics.median(t) for name, t in wall.items()}
+    out.update({f"{name}_cpu": 1e3 * statistics.median(t) for name, t in cpu.items()})
+    return out
+
+
 def _load1() -> float:
     try:
         return os.getloadavg()[0]
@@ -302,7 +330,7 @@ def machine_info(extra: Optional[dict] = None) -> str:
     """A markdown list of the machine, library versions and the load average now."""
     lines = [
         f"- machine: {platform.machine()}, {os.cpu_count()} CPU cores, {platform.platform()}",
-        f"- python {platform.python_version()}, torch {torch.__version__}, numpy {numpy.__version__}",
+        f"- python {platform.python_version()}, torch {torch.__version__}, numpy {np.__version__}",
     ]
     try:
         import numba  # optional: the renderer runs without it
@@ -316,3 +344,191 @@ def machine_info(extra: Optional[dict] = None) -> str:
     for k, v in (extra or {}).items():
         lines.append(f"- {k}: {v}")
     return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- peak memory (Linux)
+def _status_kib(field: str) -> Optional[int]:
+    """A field of /proc/self/status in KiB (``VmRSS``, ``VmHWM``), or None where it is not there."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1])
+    except OSError:
+        return None
+    return None
+
+
+def reset_peak_rss() -> Optional[int]:
+    """Resets this process's peak resident set (VmHWM) to its resident set now, through
+    /proc/self/clear_refs; returns that resident set (KiB), or None where this is not available
+    (then ``peak_rss_kib`` measures nothing)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        return None
+    return _status_kib("VmRSS")
+
+
+def peak_rss_kib() -> Optional[int]:
+    """This process's peak resident set (KiB) since ``reset_peak_rss`` (VmHWM), or None where unknown."""
+    return _status_kib("VmHWM")
+
+
+# ---------------------------------------------------------------------------- bootstrap intervals
+def bootstrap_means(values: np.ndarray, category: np.ndarray, samples: int = 2000,
+                    seed: int = 0) -> tuple[dict[int, tuple[float, float]], tuple[float, float]]:
+    """95% percentile bootstrap intervals over objects: per category of its mean, and of the
+    benchmark's mean over categories (objects resampled within each category, so every draw keeps
+    the categories' sizes).
+
+    Args:
+        values: (N,) per-object scores. category: (N,) int category of each object.
+    Returns:
+        ({category: (lo, hi)}, (lo, hi) of the mean over categories).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    category = np.asarray(category)
+    if values.shape != category.shape or values.ndim != 1 or not len(values):
+        raise ValueError(f"values and category must be equal non-empty 1-D arrays, got {values.shape} "
+                         f"and {category.shape}")
+    rng = np.random.default_rng(seed)
+    per_cat, draws = {}, []
+    for c in np.unique(category):
+        v = values[category == c]
+        means = v[rng.integers(len(v), size=(samples, len(v)))].mean(1)
+        per_cat[int(c)] = (float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5)))
+        draws.append(means)
+    overall = np.mean(draws, axis=0)
+    return per_cat, (float(np.percentile(overall, 2.5)), float(np.percentile(overall, 97.5)))
+
+
+def bootstrap_interval(values: np.ndarray, samples: int = 2000, seed: int = 0) -> tuple[float, float]:
+    """The 95% percentile bootstrap interval of the mean of ``values`` (N,): ``bootstrap_means``
+    with one category."""
+    values = np.asarray(values, dtype=np.float64)
+    return bootstrap_means(values, np.zeros(values.shape, dtype=np.int64), samples, seed)[1]
+
+
+# ---------------------------------------------------------------------------- procedural presets
+DATA_PRESETS = {"demo": "procedural", "bench": "procedural_bench"}  # configs/data/<name>.yaml of each preset
+
+
+def procedural_data(preset: str, overrides: Sequence[str] = ()):
+    """The data module of a procedural preset (``data=DATA_PRESETS[preset]`` composed through
+    configs/eval.yaml with ``overrides``), its data generated first where the cache lacks it."""
+    dm = instantiate(compose("eval", [f"data={DATA_PRESETS[preset]}", *overrides]).data)
+    dm.prepare_data()
+    return dm
+
+
+def all_voxels(dataset) -> np.ndarray:
+    """Every object's voxels of a split: (N, R, R, R) bool."""
+    return np.stack([dataset.voxels(g).numpy() for g in range(len(dataset))])
+
+
+def iou_matrix(a: np.ndarray, b: np.ndarray, chunk: int = 512) -> np.ndarray:
+    """Voxel IoU of every pair: (Q, ...) bool and (N, ...) bool -> (Q, N) float64 (1 where both are
+    empty)."""
+    fa = torch.from_numpy(np.ascontiguousarray(a, dtype=bool).reshape(len(a), -1)).float()
+    fb = torch.from_numpy(np.ascontiguousarray(b, dtype=bool).reshape(len(b), -1)).float()
+    if fa.shape[1] != fb.shape[1]:
+        raise ValueError(f"a and b must hold grids of one size, got {fa.shape[1]} and {fb.shape[1]} cells")
+    nb = fb.sum(1)
+    out = np.empty((len(fa), len(fb)))
+    for s in range(0, len(fa), chunk):
+        q = fa[s:s + chunk]
+        inter = q @ fb.T
+        union = q.sum(1, keepdim=True) + nb[None, :] - inter
+        out[s:s + chunk] = torch.where(union > 0, inter / union.clamp(min=1), torch.ones_like(inter)).double().numpy()
+    return out
+
+
+def lookup_ceiling(test: np.ndarray, train: np.ndarray) -> np.ndarray:
+    """Per test object, the highest voxel IoU of any training object: (Q,) float64 (the best any
+    lookup of training shapes can score)."""
+    return iou_matrix(test, train).max(1)
+
+
+# ---------------------------------------------------------------------------- the accuracy-versus-time study
+# benchmarks/accuracy_vs_time.py runs each part, ``python -m benchmarks.accuracy_vs_time_<part>``, in
+# a process of its own; a part keeps its section under ``<work>/sections`` and the report is
+# assembled from there.
+SECTIONS = "sections"
+
+
+@dataclass(frozen=True)
+class StudySection:
+    """One part's section of the study's report and how its run went: the markdown (kept as
+    ``<work>/sections/<part>.md``) and the rest (``<part>.json``): when it finished, its wall and
+    CPU seconds, the load average (``load_average``) before and after, and whether it was a
+    ``--quick`` run."""
+
+    markdown: str
+    finished: str
+    wall_s: float
+    cpu_s: float
+    load_before: str
+    load_after: str
+    quick: bool
+
+    def write(self, work: Path, part: str) -> None:
+        """Keeps the section under ``work/sections`` (atomically)."""
+        record = asdict(self)
+        atomic_write_text(work / SECTIONS / f"{part}.md", record.pop("markdown"))
+        atomic_write_text(work / SECTIONS / f"{part}.json", json.dumps(record, indent=2) + "\n")
+
+    @classmethod
+    def read(cls, work: Path, part: str) -> Optional[StudySection]:
+        """The section kept under ``work/sections``, or None where the part has not run."""
+        md, meta = work / SECTIONS / f"{part}.md", work / SECTIONS / f"{part}.json"
+        if not (md.is_file() and meta.is_file()):
+            return None
+        m = json.loads(meta.read_text())
+        return cls(md.read_text(), m["finished"], m["wall_s"], m["cpu_s"], m["load_before"], m["load_after"],
+                   bool(m.get("quick")))
+
+
+def run_study_part(part: str, make: Callable[[], str], work: Path, quick: bool) -> StudySection:
+    """Runs one part (``make`` returns its markdown section), timed (``timed``), and keeps its
+    section under ``work``."""
+    load_before = load_average()
+    t = timed(make)
+    section = StudySection(t.result, datetime.datetime.now().isoformat(timespec="seconds"), t.wall, t.cpu,
+                           load_before, load_average(), quick)
+    section.write(work, part)
+    return section
+
+
+def study_folders(quick: bool, docs: Optional[Path] = None, work: Optional[Path] = None) -> tuple[Path, Path]:
+    """The study's (docs, work) folders: those given, else docs/ and outputs/study/work, or with
+    ``quick`` outputs/study_quick and outputs/study_quick/work (a toy run never replaces the report)."""
+    return (docs or ROOT / ("outputs/study_quick" if quick else "docs"),
+            work or ROOT / ("outputs/study_quick/work" if quick else "outputs/study/work"))
+
+
+def study_part_parser(description: str) -> argparse.ArgumentParser:
+    """The command line that every part of the study shares (the aggregator passes it on)."""
+    ap = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="toy sizes: checks the code paths")
+    ap.add_argument("--docs", type=Path, default=None,
+                    help="where the plots go (default: docs; with --quick: outputs/study_quick)")
+    ap.add_argument("--work", type=Path, default=None,
+                    help="run folders and the kept section (default: outputs/study[_quick]/work)")
+    ap.add_argument("--threads", type=int, default=1, help="torch and numba threads (default 1)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress lines")
+    return ap
+
+
+def parse_steps(text: Optional[str]) -> Optional[tuple[int, int]]:
+    """``"150,50"`` -> (150, 50): (coarse, refine) training steps; None stays None."""
+    if text is None:
+        return None
+    try:
+        coarse, refine = (int(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"steps must be two integers 'coarse,refine', got {text!r}") from None
+    if coarse < 1 or refine < 1:
+        raise ValueError(f"steps must be positive, got {text!r}")
+    return coarse, refine
