@@ -3,13 +3,15 @@ fields, and measures of a built shape (its extent, its connected parts, its genu
 inside it)."""
 from __future__ import annotations
 
+import dataclasses
 from typing import Optional
 
 import numpy as np
+import pytest
 import torch
 from scipy import ndimage
 
-from svr.data.procedural.categories import make_shape
+from svr.data.procedural.categories import make_shape, style_of
 from svr.data.procedural.csg import CSGShape
 from svr.data.procedural.generator import voxelize_shape
 
@@ -93,3 +95,89 @@ def checked_extents(name: str, styles, seed: int, count: int) -> np.ndarray:
         if k < count // 2:
             assert components(shape) == 1, k
     return np.array(ext)
+
+
+# ------------------------------------------------------------------------------------ checks several categories share
+
+
+def check_records_frozen_and_build_deterministic(module) -> None:
+    """A category module's records are frozen dataclasses led by ``style``, ``build`` is
+    deterministic and an unknown style is refused."""
+    p = module.sample(np.random.default_rng(3), module.STYLES[0])
+    assert dataclasses.is_dataclass(p) and dataclasses.fields(p)[0].name == "style"
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        p.style = "x"
+    np.testing.assert_array_equal(module.build(p).program, module.build(p).program)
+    with pytest.raises(ValueError, match="style must be one of"):
+        module.sample(np.random.default_rng(0), "teapot")
+
+
+def check_extents_reach(name: str, low, high) -> None:
+    """30 objects' normalised bounding-box extents (x, y, z) reach at least ``low`` and ``high``."""
+    ext = np.array([np.subtract(*make_shape(name, [21, k]).bounds[::-1]) for k in range(30)])
+    assert (ext.min(0) <= np.array(low) + 1e-6).all() and (ext.max(0) >= np.array(high) - 1e-6).all(), \
+        (ext.min(0), ext.max(0))
+
+
+def check_every_style_connected_with_named_parts(name: str, module) -> None:
+    """Two objects of every style are one 26-connected solid with 2-8 named parts."""
+    for style in module.STYLES:
+        for k in range(2):
+            shape = make_shape(name, [22, k], style=style)
+            assert ndimage.label(occupancy(shape), np.ones((3, 3, 3)))[1] == 1, (style, k)
+            assert 2 <= len(shape.parts) <= 8, (style, shape.parts)
+
+
+def check_ratio_spreads(name: str, height_width: float, depth_width: float) -> None:
+    """The spread of 30 objects' height/width and depth/width ratios is at least the given ones."""
+    hw, dw = [], []
+    for k in range(30):
+        lo, hi = make_shape(name, [21, k]).bounds
+        ext = hi - lo
+        hw.append(ext[1] / ext[0])
+        dw.append(ext[2] / ext[0])
+    assert np.ptp(hw) >= height_width and np.ptp(dw) >= depth_width, (np.ptp(hw), np.ptp(dw))
+
+
+def check_one_solid_with_parts(name: str) -> None:
+    """16 objects are each one solid in the benchmark's voxels, with 2-8 parts and a short program,
+    in at least 3 styles."""
+    styles = set()
+    for k in range(16):
+        shape = make_shape(name, [22, k])
+        styles.add(style_of(name, [22, k]))
+        vox = voxelize_shape(shape, rule="protocol")
+        _, count = ndimage.label(vox, structure=np.ones((3, 3, 3)))
+        assert count == 1, (k, count)
+        assert 2 <= len(shape.parts) <= 8, shape.parts
+        assert len(shape.program) <= 40
+    assert len(styles) >= 3
+
+
+def check_every_style_builds_one_labelled_solid(module) -> None:
+    """24 records, cycling through the styles, build one solid with 2-8 parts and at most 45 rows."""
+    for k in range(24):
+        style = module.STYLES[k % len(module.STYLES)]
+        shape = module.build(module.sample(np.random.default_rng([33, k]), style)).normalized()
+        vox = voxelize_shape(shape, rule="protocol")
+        _, count = ndimage.label(vox, structure=np.ones((3, 3, 3)))
+        assert count == 1, (style, k, count)
+        assert 2 <= len(shape.parts) <= 8, shape.parts
+        assert len(shape.program) <= 45, (style, k, len(shape.program))
+
+
+def check_seats_connected_with_named_parts(name: str) -> None:
+    """Each of 24 objects is one 26-connected solid on a 64^3 sample, with 2-8 named parts."""
+    for k in range(24):
+        shape = make_shape(name, [78, k])
+        _, n = ndimage.label(occupancy(shape), np.ones((3, 3, 3)))
+        assert n == 1, (name, k, n)
+        assert 2 <= len(shape.parts) <= 8 and "body" not in shape.parts, (name, k, shape.parts)
+
+
+def check_normalised_ratio_spread(name: str, ratio: str, lo: float, hi: float) -> None:
+    """30 objects' height/width or depth/width (measured on a 64^3 grid) reach below ``lo`` and above ``hi``."""
+    ext = np.array([grid_extent(make_shape(name, [79, k])) for k in range(30)])
+    num = ext[:, 1] if ratio.startswith("height") else ext[:, 2]
+    r = num / ext[:, 0]
+    assert r.min() < lo and r.max() > hi, (name, ratio, r.min(), r.max())

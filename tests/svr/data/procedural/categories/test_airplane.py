@@ -2,12 +2,10 @@
 built objects span wide proportions, are one connected solid each and carry named parts."""
 from __future__ import annotations
 
-import numpy as np
-import scipy.ndimage as ndi
 
-from svr.data.procedural.categories import airplane, make_shape
+from svr.data.procedural.categories import airplane
 
-from .helpers import occupancy, records, span
+from .helpers import check_every_style_connected_with_named_parts, check_extents_reach, records, span
 
 
 def test_airplane_parameter_sweep():
@@ -29,16 +27,10 @@ def test_airplane_parameter_sweep():
 
 
 def test_proportions_span_a_wide_range():
-    ext = np.array([np.subtract(*make_shape("airplane", [21, k]).bounds[::-1]) for k in range(30)])
-    # normalised bounding-box extents (x, y, z) that 30 objects reach at least, low and high
-    low, high = (0.6, 0.2, 0.6), (0.95, 0.33, 0.95)
-    assert (ext.min(0) <= np.array(low) + 1e-6).all() and (ext.max(0) >= np.array(high) - 1e-6).all(), \
-        (ext.min(0), ext.max(0))
+    check_extents_reach("airplane", (0.6, 0.2, 0.6), (0.95, 0.33, 0.95))
 
 
 def test_objects_are_one_connected_solid_with_named_parts():
-    for style in airplane.STYLES:
-        for k in range(2):
-            shape = make_shape("airplane", [22, k], style=style)
-            assert ndi.label(occupancy(shape), np.ones((3, 3, 3)))[1] == 1, (style, k)
-            assert 2 <= len(shape.parts) <= 8, (style, shape.parts)
+    check_every_style_connected_with_named_parts("airplane", airplane)
+
+

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
-from svr.data.procedural.categories import bench, make_shape
+from svr.data.procedural.categories import bench
 
-from .helpers import grid_extent, occupancy, records, values
+from .helpers import check_normalised_ratio_spread, check_seats_connected_with_named_parts, records, values
 
 
 def test_bench_sample_sweep_covers_options_and_ranges():
@@ -29,11 +28,7 @@ def test_bench_sample_sweep_covers_options_and_ranges():
 
 def test_built_objects_are_one_connected_solid_with_named_parts():
     """Each object is one 26-connected solid on a 64^3 sample, with 2-8 named parts."""
-    for k in range(24):
-        shape = make_shape("bench", [78, k])
-        _, n = ndimage.label(occupancy(shape), np.ones((3, 3, 3)))
-        assert n == 1, ("bench", k, n)
-        assert 2 <= len(shape.parts) <= 8 and "body" not in shape.parts, ("bench", k, shape.parts)
+    check_seats_connected_with_named_parts("bench")
 
 
 @pytest.mark.parametrize("ratio,lo,hi", [
@@ -41,7 +36,6 @@ def test_built_objects_are_one_connected_solid_with_named_parts():
     ("depth/width", 0.3, 0.45),
 ])
 def test_normalised_proportions_span_a_wide_range(ratio, lo, hi):
-    ext = np.array([grid_extent(make_shape("bench", [79, k])) for k in range(30)])
-    num = ext[:, 1] if ratio.startswith("height") else ext[:, 2]
-    r = num / ext[:, 0]
-    assert r.min() < lo and r.max() > hi, ("bench", ratio, r.min(), r.max())
+    check_normalised_ratio_spread("bench", ratio, lo, hi)
+
+

@@ -7,23 +7,15 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import pytest
-from scipy import ndimage
 
-from svr.data.procedural.categories import cabinet, display, make_shape, style_of
-from svr.data.procedural.generator import voxelize_shape
+from svr.data.procedural.categories import cabinet, display
 
-from .helpers import genus, records
+from .helpers import (check_every_style_builds_one_labelled_solid, check_one_solid_with_parts, check_ratio_spreads,
+                      check_records_frozen_and_build_deterministic, genus, records)
 
 
 def test_records_are_frozen_and_build_is_deterministic():
-    p = cabinet.sample(np.random.default_rng(3), cabinet.STYLES[0])
-    assert dataclasses.is_dataclass(p) and dataclasses.fields(p)[0].name == "style"
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        p.style = "x"
-    np.testing.assert_array_equal(cabinet.build(p).program, cabinet.build(p).program)
-    with pytest.raises(ValueError, match="style must be one of"):
-        cabinet.sample(np.random.default_rng(0), "teapot")
+    check_records_frozen_and_build_deterministic(cabinet)
 
 
 def test_cabinet_sweep():
@@ -42,27 +34,11 @@ def test_cabinet_sweep():
 
 
 def test_proportions_span_a_wide_range():
-    # the smallest spread of each normalised bounding-box ratio: height/width 1.5, depth/width 0.5
-    hw, dw = [], []
-    for k in range(30):
-        lo, hi = make_shape("cabinet", [21, k]).bounds
-        ext = hi - lo
-        hw.append(ext[1] / ext[0])
-        dw.append(ext[2] / ext[0])
-    assert np.ptp(hw) >= 1.5 and np.ptp(dw) >= 0.5, (np.ptp(hw), np.ptp(dw))
+    check_ratio_spreads("cabinet", 1.5, 0.5)
 
 
 def test_objects_are_one_solid_with_parts():
-    styles = set()
-    for k in range(16):
-        shape = make_shape("cabinet", [22, k])
-        styles.add(style_of("cabinet", [22, k]))
-        vox = voxelize_shape(shape, rule="protocol")
-        _, count = ndimage.label(vox, structure=np.ones((3, 3, 3)))
-        assert count == 1, (k, count)
-        assert 2 <= len(shape.parts) <= 8, shape.parts
-        assert len(shape.program) <= 40
-    assert len(styles) >= 3
+    check_one_solid_with_parts("cabinet")
 
 
 def test_holes_where_cabinets_and_displays_have_them():
@@ -90,11 +66,6 @@ def test_cabinet_open_doors_pulled_drawers_and_cell_depths_are_drawn():
 
 
 def test_every_style_builds_one_labelled_solid():
-    for k in range(24):
-        style = cabinet.STYLES[k % len(cabinet.STYLES)]
-        shape = cabinet.build(cabinet.sample(np.random.default_rng([33, k]), style)).normalized()
-        vox = voxelize_shape(shape, rule="protocol")
-        _, count = ndimage.label(vox, structure=np.ones((3, 3, 3)))
-        assert count == 1, (style, k, count)
-        assert 2 <= len(shape.parts) <= 8, shape.parts
-        assert len(shape.program) <= 45, (style, k, len(shape.program))
+    check_every_style_builds_one_labelled_solid(cabinet)
+
+

@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy import ndimage
 
 from svr.data.procedural.categories import chair, make_shape
 
-from .helpers import genus, grid_extent, occupancy, records, values
+from .helpers import check_normalised_ratio_spread, check_seats_connected_with_named_parts, genus, records, values
 
 
 def test_chair_sample_sweep_covers_options_and_ranges():
@@ -28,11 +27,7 @@ def test_chair_sample_sweep_covers_options_and_ranges():
 
 def test_built_objects_are_one_connected_solid_with_named_parts():
     """Each object is one 26-connected solid on a 64^3 sample, with 2-8 named parts."""
-    for k in range(24):
-        shape = make_shape("chair", [78, k])
-        _, n = ndimage.label(occupancy(shape), np.ones((3, 3, 3)))
-        assert n == 1, ("chair", k, n)
-        assert 2 <= len(shape.parts) <= 8 and "body" not in shape.parts, ("chair", k, shape.parts)
+    check_seats_connected_with_named_parts("chair")
 
 
 @pytest.mark.parametrize("ratio,lo,hi", [
@@ -40,10 +35,7 @@ def test_built_objects_are_one_connected_solid_with_named_parts():
     ("depth/width", 0.85, 1.2),
 ])
 def test_normalised_proportions_span_a_wide_range(ratio, lo, hi):
-    ext = np.array([grid_extent(make_shape("chair", [79, k])) for k in range(30)])
-    num = ext[:, 1] if ratio.startswith("height") else ext[:, 2]
-    r = num / ext[:, 0]
-    assert r.min() < lo and r.max() > hi, ("chair", ratio, r.min(), r.max())
+    check_normalised_ratio_spread("chair", ratio, lo, hi)
 
 
 def test_chair_styles_differ_in_structure():

@@ -7,11 +7,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-import scipy.ndimage as ndi
 
-from svr.data.procedural.categories import make_shape, rifle
+from svr.data.procedural.categories import rifle
 
-from .helpers import checked_extents, genus, occupancy, records, span
+from .helpers import (check_every_style_connected_with_named_parts, check_extents_reach, checked_extents, genus,
+                      records, span)
 
 
 def test_rifle_parameter_sweep():
@@ -30,19 +30,11 @@ def test_rifle_parameter_sweep():
 
 
 def test_proportions_span_a_wide_range():
-    ext = np.array([np.subtract(*make_shape("rifle", [21, k]).bounds[::-1]) for k in range(30)])
-    # normalised bounding-box extents (x, y, z) that 30 objects reach at least, low and high
-    low, high = (0.12, 0.25, 1.0), (0.15, 0.45, 1.0)
-    assert (ext.min(0) <= np.array(low) + 1e-6).all() and (ext.max(0) >= np.array(high) - 1e-6).all(), \
-        (ext.min(0), ext.max(0))
+    check_extents_reach("rifle", (0.12, 0.25, 1.0), (0.15, 0.45, 1.0))
 
 
 def test_objects_are_one_connected_solid_with_named_parts():
-    for style in rifle.STYLES:
-        for k in range(2):
-            shape = make_shape("rifle", [22, k], style=style)
-            assert ndi.label(occupancy(shape), np.ones((3, 3, 3)))[1] == 1, (style, k)
-            assert 2 <= len(shape.parts) <= 8, (style, shape.parts)
+    check_every_style_connected_with_named_parts("rifle", rifle)
 
 
 def test_rifle_sweep_covers_stocks_slings_bipods_and_widths():

@@ -7,11 +7,11 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-import scipy.ndimage as ndi
 
 from svr.data.procedural.categories import make_shape, vessel
 
-from .helpers import components, inside, occupancy, records, span, values
+from .helpers import (check_every_style_connected_with_named_parts, check_extents_reach, components, inside, records,
+                      span, values)
 
 
 def test_vessel_parameter_sweep():
@@ -30,19 +30,11 @@ def test_vessel_parameter_sweep():
 
 
 def test_proportions_span_a_wide_range():
-    ext = np.array([np.subtract(*make_shape("vessel", [21, k]).bounds[::-1]) for k in range(30)])
-    # normalised bounding-box extents (x, y, z) that 30 objects reach at least, low and high
-    low, high = (0.25, 0.25, 1.0), (0.35, 0.5, 1.0)
-    assert (ext.min(0) <= np.array(low) + 1e-6).all() and (ext.max(0) >= np.array(high) - 1e-6).all(), \
-        (ext.min(0), ext.max(0))
+    check_extents_reach("vessel", (0.25, 0.25, 1.0), (0.35, 0.5, 1.0))
 
 
 def test_objects_are_one_connected_solid_with_named_parts():
-    for style in vessel.STYLES:
-        for k in range(2):
-            shape = make_shape("vessel", [22, k], style=style)
-            assert ndi.label(occupancy(shape), np.ones((3, 3, 3)))[1] == 1, (style, k)
-            assert 2 <= len(shape.parts) <= 8, (style, shape.parts)
+    check_every_style_connected_with_named_parts("vessel", vessel)
 
 
 def test_vessel_styles_with_and_without_superstructure():
