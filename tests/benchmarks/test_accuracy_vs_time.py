@@ -1,6 +1,6 @@
-"""The accuracy-versus-time study (benchmarks/accuracy_vs_time*.py): its helpers, and every part's code path
-at toy sizes through the one command's driver, each part a command of its own (no timing asserted). The
-full study is `slow`."""
+"""The accuracy-versus-time study (benchmarks/accuracy_vs_time*.py): its helpers, one part's code path at
+toy size through the one command's driver (each part a command of its own; no timing asserted), and
+under `slow` all three parts at toy size and the full study."""
 from __future__ import annotations
 
 import json
@@ -95,7 +95,24 @@ def test_timeline_subtracts_the_validations(tmp_path):
     assert [e["train_wall"] for e in got] == [1.0, 3.0, 6.0]
 
 
+def test_one_part_runs_at_toy_size_into_the_report(tmp_path):
+    """The driver runs the renderer's part as its own command and assembles the report from its
+    section; the parts not run say how to run them."""
+    docs, work = tmp_path / "docs", tmp_path / "work"
+    path = accuracy_vs_time.run_parts(("renderer",), docs, work, quick=True, cuda=False, progress=False)
+    md = path.read_text()
+    assert path == docs / accuracy_vs_time.REPORT and "`--quick` results" in md
+    assert "## Renderer" in md and "## Machine" in md and "Exact against conservative" in md
+    for png in [f"study_renderer_{name}.png" for name in accuracy_vs_time_renderer.sweeps(True)]:
+        assert (docs / png).stat().st_size > 1000 and f"({png})" in md
+    for part in ("mvr", "svr"):
+        assert f"Not run yet: `python -m benchmarks.accuracy_vs_time --parts {part}`" in md
+    assert not list(docs.glob("*.tmp")) and not list(docs.glob(".*.tmp"))
+
+
+@pytest.mark.slow
 def test_every_part_runs_at_toy_size_into_one_report(tmp_path):
+    """All three parts at toy size (about 75 s on 2 cores, so `slow`; the default suite runs one part)."""
     docs, work = tmp_path / "docs", tmp_path / "work"
     path = accuracy_vs_time.run_parts(accuracy_vs_time.PARTS, docs, work, quick=True, cuda=False, progress=False)
     md = path.read_text()

@@ -235,9 +235,13 @@ def _train_command(overrides: list[str]) -> list[str]:
     return [sys.executable, str(REPO / "train.py"), *overrides]
 
 
+@pytest.mark.slow
 def test_command_line_sigterm_exits_nonzero_and_resumes_in_place(tmp_path, data_overrides):
     """train.py killed with SIGTERM at random moments exits 143 each time; resuming with docs/svr_training.md's
-    command continues in the same folder, with its config, and ends where an uninterrupted run ends."""
+    command continues in the same folder, with its config, and ends where an uninterrupted run ends.
+    `slow` (four training processes, about 30 s): in the default suite a SIGTERM's checkpoint and the
+    resume that equals an uninterrupted run are ``test_sigterm_saves_and_resume_equals_uninterrupted_run``'s,
+    the command's exit status 143 and resume ``tests/svr/test_demo.py``'s."""
     # 60 steps: each kill lands a few steps after a new last.ckpt appears (about 8 steps here), so
     # three kills stay well inside the stage; a kill after its last step would find the run done.
     base = tiny_overrides(data_overrides, 60, "stage=coarse", "callbacks.image_logger=null")
