@@ -56,6 +56,7 @@ class DemoSettings(TrainSettings):
     recalibrate: bool
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         if not self.out:
             raise ValueError("out must name the demo's folder")
         if self.eval_only and self.fresh:

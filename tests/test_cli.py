@@ -218,3 +218,142 @@ def test_help_lists_the_commands_own_settings_only(module, own, foreign, monkeyp
         assert word in text, word
     for word in foreign:
         assert word not in text, word
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue 40 item 6: an override hydra cannot compose is one line with status 2, in every command
+
+COMMANDS = {"svr.train": "sdfdiff-train", "svr.evaluate": "sdfdiff-evaluate", "svr.infer": "sdfdiff-infer",
+            "svr.demo": "svr.demo", "mvr.__main__": "sdfdiff-mvr", "svr.data.build.__main__": "sdfdiff-build"}
+
+
+def _main(module: str):
+    import importlib
+
+    return importlib.import_module(module).main
+
+
+@pytest.mark.parametrize("module, args, expected", [
+    ("svr.train", ["foo=1"], "foo: unknown setting (TrainSettings has: seed, ckpt_path, "),
+    ("svr.train", ["model=bogus"], "model=bogus: no such option (model has: paper, pixel, small, tiny)"),
+    ("svr.train", ["mvr/noise=bogus"], "mvr/noise: sdfdiff-train has no config group mvr/noise (its groups: "),
+    ("svr.evaluate", ["foo=1"], "foo: unknown setting (EvalSettings has: ckpt_path, split, "),
+    ("svr.evaluate", ["data=bogus"], "data=bogus: no such option (data has: nmr, procedural, procedural_bench)"),
+    ("svr.infer", ["foo=1"], "foo: unknown setting (InferSettings has: ckpt_path, images, "),
+    ("svr.infer", ["model=bogus"], "model: sdfdiff-infer has no config group model (its groups: paths)"),
+    ("svr.demo", ["foo=1"], "foo: unknown setting (DemoSettings has: "),
+    ("svr.demo", ["model=bogus"], "model=bogus: no such option (model has: paper, pixel, small, tiny)"),
+    ("mvr.__main__", ["foo=1"], "foo: unknown setting (MVRSettings has: "),
+    ("mvr.__main__", ["mvr/noise=bogus"], "mvr/noise=bogus: no such option (mvr/noise has: camera, image, none)"),
+    ("svr.data.build.__main__", ["foo=1"], "foo: unknown setting (BuildSettings has: input, out, "),
+    ("svr.data.build.__main__", ["hydra/launcher=bogus"], "hydra/launcher=bogus: no such option (hydra/launcher has: "),
+])
+def test_an_unknown_key_or_group_option_is_one_line_in_every_command(module, args, expected, tmp_path, monkeypatch,
+                                                                     capsys):
+    monkeypatch.chdir(tmp_path)
+    line = expect_usage_error(_main(module), args, monkeypatch, capsys, COMMANDS[module])
+    assert line.startswith(f"{COMMANDS[module]}: error: {expected}"), line
+    assert list(tmp_path.iterdir()) == []  # refused before hydra made a folder or a log
+
+
+def test_every_override_hydra_cannot_compose_is_named(toy, tmp_path, monkeypatch, capsys):
+    run = tmp_path / "run"
+    for args, expected in (
+            (["mode=[1,"], "cannot read the override 'mode=[1,': "),
+            (["+mode=x"], "+mode=x: mode is in the config already: set it with mode=x"),
+            (["~nope"], "~nope: nope is not in the config"),
+            (["mode=a,b"], "Ambiguous value for argument 'mode=a,b': a list is key=[a,b], a string key='a,b', "
+                           "a sweep needs --multirun"),
+            (["mode.deeper=1"], "mode.deeper: mode is a value, not a group of settings"),
+            (["hydra/launcher=bogus"], "hydra/launcher=bogus: no such option (hydra/launcher has: basic")):
+        line = expect_usage_error(toy, [f"out={run}", *args], monkeypatch, capsys, "toy-cmd")
+        assert line.startswith(f"toy-cmd: error: {expected}"), line
+        assert not run.exists()
+
+
+def test_every_value_of_a_sweep_is_composed_before_any_job_runs(toy, tmp_path, monkeypatch, capsys):
+    line = expect_usage_error(toy, ["-m", f"out={tmp_path / 'sweep'}", "mode=ok,ok,ok", "hydra/launcher=basic,bogus"],
+                              monkeypatch, capsys, "toy-cmd")
+    assert "hydra/launcher=bogus: no such option" in line
+    line = expect_usage_error(toy, ["-m", f"out={tmp_path / 'sweep'}", "mode=ok,fine", "nope=1,2"], monkeypatch, capsys)
+    assert line == "toy-cmd: error: nope: unknown setting (ToySettings has: out, mode, nothing_here_but_missing)"
+    assert not (tmp_path / "sweep").exists() and not (tmp_path / "multirun").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue 40 item 18: --help shows each setting's comment from the YAML files
+
+
+@pytest.mark.parametrize("module, setting, comment", [
+    ("svr.train", "seed: 0", "# seeds weights, sampling and each stage"),
+    ("svr.train", "    eikonal: 0.02", "# paper: lambda_1 = 0.02"),  # from the loss group's file
+    ("svr.train", "data:", "# data=procedural"),
+    ("svr.evaluate", "split: test", "# test (the benchmark's) | val | train"),
+    ("svr.infer", "ckpt_path: ???", "# one of our checkpoints"),
+    ("svr.demo", "quiet: false", "# true: no progress bars"),
+    ("svr.demo", "  views_per_sample: 8", "# ours: 8 supervised views"),  # from experiment=demo
+    ("mvr.__main__", "  start: 8", "# paper: 8^3 initial grid"),
+    ("svr.data.build.__main__", "views: 24", "# SPEC 5 (NMR): 24 views"),
+])
+def test_help_shows_the_comments_of_the_settings(module, setting, comment, monkeypatch, capsys):
+    with pytest.raises(SystemExit) as stop:
+        run_entry(_main(module), ["--help"], monkeypatch)
+    assert not stop.value.code
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.split("#", 1)[0].rstrip() == setting]
+    assert lines and comment in lines[0], lines
+
+
+def test_help_follows_the_command_line_and_keeps_continued_comments(tmp_path, monkeypatch, capsys):
+    conf = tmp_path / "conf"
+    (conf / "size").mkdir(parents=True)
+    (conf / "toy.yaml").write_text(TOY_YAML.replace("mode: ok\n", "mode: ok        # ok | user | bug\n"
+                                                    "                # (what the toy does)\n")
+                                   .replace("_target_: tests", "defaults:\n  - _self_\n  - size: small\n_target_: tests")
+                                   .replace("  help:\n", "  help:\n    template: 'toy help: $CONFIG'\n"))
+    (conf / "size" / "small.yaml").write_text("side: 1    # the side\n")
+    (conf / "size" / "big.yaml").write_text("# @package size\nside: 9    # a big side\n")
+    entry = hydra_entry("toy", toy_task, str(conf))
+    with pytest.raises(SystemExit):
+        run_entry(entry, ["--help", "size=big"], monkeypatch)
+    text = capsys.readouterr().out
+    assert "toy help" in text and "mode: ok" in text and "# ok | user | bug" in text
+    assert "# (what the toy does)" in text and "size:" in text and "# size=big" in text
+    assert "side: 9" in text and "# a big side" in text and "# the side" not in text
+    with pytest.raises(SystemExit) as stop:  # a bad override with --help is the same one line
+        run_entry(entry, ["--help", "size=huge"], monkeypatch)
+    assert stop.value.code == USAGE_ERROR and "size=huge: no such option" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue 40 items 5 and 7: settings the machine cannot run, or out of range, are one line before work
+
+needs_no_gpu = pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without a GPU")
+
+
+@pytest.mark.parametrize("module, args, expected", [
+    pytest.param("svr.train", ["trainer=gpu"], "trainer.accelerator='gpu' needs a CUDA GPU and torch sees none here: "
+                 "train on the CPU with trainer=cpu", marks=needs_no_gpu),
+    pytest.param("svr.train", ["experiment=paper_nmr", "data.root=nowhere"],
+                 "trainer.accelerator='gpu' needs a CUDA GPU", marks=needs_no_gpu),
+    pytest.param("svr.demo", ["trainer=gpu"], "trainer.accelerator='gpu' needs a CUDA GPU", marks=needs_no_gpu),
+    pytest.param("svr.train", ["loss.backend=cuda"], "loss.backend 'cuda' cannot run here: torch sees no CUDA GPU",
+                 marks=needs_no_gpu),
+    pytest.param("svr.infer", ["ckpt_path=x.ckpt", "images=x.png", "backend=cuda"],
+                 "backend 'cuda' cannot run here: torch sees no CUDA GPU", marks=needs_no_gpu),
+    pytest.param("mvr.__main__", ["target=torus", "backend=cuda"], "backend", marks=needs_no_gpu),
+    ("svr.train", ["stage.coarse.max_time=abc"], "stage.coarse.max_time must be a duration 'DD:HH:MM:SS'"),
+    ("svr.train", ["stage.joint.max_time='00:00:00:00'"], "stage.joint.max_time must be a duration"),
+    ("svr.train", ["seed=-1"], "seed must be an integer in [0, 4294967293], got -1"),
+    ("svr.train", ["loss.render_size=100000"], "loss.render_size must divide the images' side 64 "
+                                               "(1, 2, 4, 8, 16, 32, 64), got 100000"),
+    ("svr.infer", ["ckpt_path=x.ckpt", "images=x.png", "render_size=100000"],
+     "render_size must be at most 512 (the previews of a batch are rendered at once), got 100000"),
+])
+def test_a_setting_this_machine_cannot_run_is_one_line_before_any_work(module, args, expected, tmp_path, monkeypatch,
+                                                                       capsys):
+    monkeypatch.chdir(tmp_path)
+    line = expect_usage_error(_main(module), args, monkeypatch, capsys, COMMANDS[module])
+    assert line.startswith(f"{COMMANDS[module]}: error: {expected}"), line
+    if module == "mvr.__main__":
+        assert "cuda" in line, line
+    assert list(tmp_path.iterdir()) == []  # refused before the run folder was made

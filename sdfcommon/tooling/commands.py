@@ -5,7 +5,10 @@ command's typed settings, ``run(settings)`` works), and ``RunFolderGuard``, the 
 (ValueError, TypeError, OSError, omegaconf's missing or invalid keys, a hydra instantiation caused
 by one of those) is ONE line ``<prog>: error: <message>`` with exit status 2, checked before the run
 folder is made where it can be; a bug keeps hydra's traceback (exit status 1); ``SystemExit`` passes
-untouched (143 after SIGTERM). A failed run that wrote nothing but its records (``.hydra/``,
+untouched (143 after SIGTERM). Before hydra runs, ``command_line`` composes the command line once:
+an override hydra cannot compose (an unknown key, a group option that does not exist) is the same
+one line, where hydra would print several with status 1, and ``--help`` shows every setting with
+its YAML comment. A failed run that wrote nothing but its records (``.hydra/``,
 ``*.log``, ``RUN_RECORDS``) leaves nothing behind: what it created goes, what existed before is
 restored to its bytes; a run that wrote results keeps them. Resolvers registered on import:
 ``${first_set:a,b}`` (the first argument that is set) and ``${config_options:group}`` (a group's
@@ -30,6 +33,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf import errors as oc_errors
 from PIL import Image
 
+from sdfcommon.tooling.command_line import USAGE_ERROR, check_command_line, hydra_arguments, report_usage_error
 from sdfcommon.tooling.outputs import atomic_write, make_writable_folder
 from sdfcommon.tooling.serialization import scrub_unsafe_advice
 from sdfcommon.tooling.settings import build_settings
@@ -38,7 +42,7 @@ from sdfcommon.tooling.settings import build_settings
 # folder, pyproject.toml's package-dir): console scripts find them wherever they run.
 CONFIG_MODULE = "sdfdiff_configs"
 CONFIG_PATH = f"pkg://{CONFIG_MODULE}"
-USAGE_ERROR = 2
+DEFAULT_PROG = "sdfdiff"  # a command's name in messages where its config has no hydra.help.app_name
 # Files a run writes about itself (not results): cleaned after a failed run that wrote nothing else.
 RUN_RECORDS = ("config.yaml", "settings.json")
 _RECORD_BYTES = 1 << 20  # records above this are not restored (a config or settings file is a few KiB)
@@ -242,14 +246,14 @@ class RunFolderGuard(Callback):
             message = user_message(err)
             if message is None:
                 raise
-            _report(prog, message)
+            report_usage_error(prog, message)
         snap = self.snapshot = RunFolderSnapshot.take(folder, OmegaConf.select(config, "hydra.output_subdir"),
                                                       self.records)
         try:
             make_writable_folder(folder)
         except OSError as err:
             snap.clean_after_failure()
-            _report(prog, f"cannot write the run folder {folder} ({err.strerror or err})")
+            report_usage_error(prog, f"cannot write the run folder {folder} ({err.strerror or err})")
 
     def on_job_end(self, config: DictConfig, job_return: JobReturn, **kwargs: Any) -> None:
         snap = self.snapshot
@@ -264,16 +268,11 @@ class RunFolderGuard(Callback):
             snap.clean_after_failure()
         message = user_message(err) if isinstance(err, BaseException) else None
         if message is not None:
-            _report(_prog(config), message)
+            report_usage_error(_prog(config), message)
 
 
 def _prog(config: DictConfig) -> str:
-    return str(OmegaConf.select(config, "hydra.help.app_name", default=None) or "sdfdiff")
-
-
-def _report(prog: str, message: str) -> None:
-    print(f"{prog}: error: {message}", file=sys.stderr, flush=True)
-    raise SystemExit(USAGE_ERROR)
+    return str(OmegaConf.select(config, "hydra.help.app_name", default=None) or DEFAULT_PROG)
 
 
 def compose(config_name: str, overrides: Sequence[str] = ()) -> DictConfig:
@@ -288,7 +287,10 @@ def hydra_entry(config_name: str, run: Callable[[Any], Any], config_path: str = 
     """The ``main()`` of a command: hydra composes ``<config_name>.yaml`` (of the configs shipped
     with the package) with the command line, the composed config becomes the command's typed
     settings (``build_settings``: its ``_target_`` dataclass) and ``run(settings)`` does the work.
-    The run-folder guard and the error handling come from the config (``RunFolderGuard``).
+    The command line is composed once before hydra runs it (``command_line.check_command_line``:
+    an unknown key or group option is one line, ``--help`` shows the settings with their YAML
+    comments); the run-folder guard and the error handling come from the config
+    (``RunFolderGuard``).
 
     Returns:
         ``main()``, for ``[project.scripts]`` and ``if __name__ == "__main__": main()``; the exit
@@ -297,8 +299,12 @@ def hydra_entry(config_name: str, run: Callable[[Any], Any], config_path: str = 
     """
 
     @hydra.main(version_base="1.3", config_path=config_path, config_name=config_name)
-    def main(cfg: DictConfig) -> Any:
+    def hydra_main(cfg: DictConfig) -> Any:
         return run(build_settings(cfg))
+
+    def main() -> Any:
+        check_command_line(config_name, config_path, hydra_arguments(sys.argv[1:]), DEFAULT_PROG)
+        return hydra_main()
 
     main.__doc__ = f"hydra reads {config_name}.yaml and the command line, then runs " \
                    f"{getattr(run, '__module__', '')}.{getattr(run, '__name__', 'run')}(settings)."
