@@ -7,8 +7,9 @@ input=outputs/example_meshes out=outputs/example_nmr`` builds. Made here: the an
 solids (``SOLIDS``: sphere, torus, box, as CSG shapes whose exact inside is known), the procedural
 categories' shapes, both exported as meshes by marching cubes of their exact SDF (``shape_mesh``),
 the damage real CAD meshes carry (``damage``: a patch of faces removed, a few faces flipped, a
-duplicated inner shell) and ``write_example_meshes``, a small flat-layout folder of coloured OBJ
-files (with their MTL) and the other formats the builder reads.
+duplicated inner shell) and ``write_example_meshes``, a small flat-layout folder (3 categories of 5
+meshes: enough for every split of each, see docs/data.md) of coloured OBJ files (with their MTL)
+and the other formats the builder reads.
 """
 from __future__ import annotations
 
@@ -114,40 +115,57 @@ def write_obj(path: Path, vertices: np.ndarray, faces: np.ndarray, colours: Sequ
     write_text(path, "\n".join(lines) + "\n")
 
 
-def write_example_meshes(folder: Path, resolution: int = 40) -> list[Path]:
-    """A small flat-layout input (``<category>/<name>.<ext>``): two NMR categories by name, a chair
-    in two colours (OBJ + MTL), a table (OBJ + MTL) and a sofa (PLY), plus a category of its own
-    ("solids": a torus as STL, a box as OFF, a sphere as GLB). Returns the files."""
+EXAMPLE_CATEGORIES = ("chair", "sofa", "table")
+# The table's meshes take these formats in turn (OBJ with its MTL; PLY and GLB with face colours).
+TABLE_FORMATS = ("stl", "off", "glb", "obj", "ply")
+
+
+def write_example_meshes(folder: Path, resolution: int = 40, per_category: int = 5) -> list[Path]:
+    """A small flat-layout input (``<category>/<name>.<ext>``): three NMR categories by name,
+    ``per_category`` procedural shapes each (seeds 1, 2, ...): chairs in two colours (OBJ + MTL),
+    sofas (PLY with face colours) and tables in the formats of ``TABLE_FORMATS`` in turn. With 3
+    or more per category the builder's default split_ratios give every split of each an object.
+    Returns the files."""
     import trimesh  # heavy: only the example needs it
 
     folder = Path(folder)
     made = []
-    for category, name, seed, colours in (("chair", "chair_0", 1, [(0.6, 0.3, 0.1), (0.15, 0.15, 0.15)]),
-                                          ("table", "table_0", 2, [(0.8, 0.8, 0.75)])):
-        v, f = procedural_mesh(category, (seed,), resolution)
-        path = folder / category / f"{name}.obj"
-        write_obj(path, v, f, colours)
+    for k in range(per_category):
+        v, f = procedural_mesh("chair", (1 + k,), resolution)
+        path = folder / "chair" / f"chair_{k}.obj"
+        write_obj(path, v, f, [(0.6, 0.3, 0.1), (0.15, 0.15, 0.15)])
         made.append(path)
-    v, f = procedural_mesh("sofa", (3,), resolution)
-    sofa = trimesh.Trimesh(v, f, process=False)
-    sofa.visual.face_colors = np.tile([40, 90, 160, 255], (len(f), 1))
-    made.append(write_mesh(folder / "sofa" / "sofa_0.ply", sofa))
-    for name, ext in (("torus", "stl"), ("box", "off"), ("sphere", "glb")):
-        v, f = shape_mesh(SOLIDS[name](), resolution)
-        made.append(write_mesh(folder / "solids" / f"{name}.{ext}", trimesh.Trimesh(v, f, process=False)))
-    return made
+        v, f = procedural_mesh("sofa", (1 + k,), resolution)
+        sofa = trimesh.Trimesh(v, f, process=False)
+        sofa.visual.face_colors = np.tile([40, 90, 160, 255], (len(f), 1))
+        made.append(write_mesh(folder / "sofa" / f"sofa_{k}.ply", sofa))
+        v, f = procedural_mesh("table", (1 + k,), resolution)
+        ext = TABLE_FORMATS[k % len(TABLE_FORMATS)]
+        path = folder / "table" / f"table_{k}.{ext}"
+        if ext == "obj":
+            write_obj(path, v, f, [(0.8, 0.8, 0.75)])
+        else:
+            table = trimesh.Trimesh(v, f, process=False)
+            table.visual.face_colors = np.tile([200, 200, 190, 255], (len(f), 1))
+            write_mesh(path, table)
+        made.append(path)
+    return sorted(made)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description="Writes the example meshes (six meshes, four categories).")
+    parser = argparse.ArgumentParser(description="Writes the example meshes (3 categories, 5 meshes each).")
     parser.add_argument("out", help="the folder to write (<category>/<name>.<ext>)")
+    parser.add_argument("--per-category", type=int, default=5, help="meshes per category (default 5)")
     args = parser.parse_args(argv)
-    made = write_example_meshes(Path(args.out))
-    print(f"wrote {len(made)} meshes into {args.out}")
+    if args.per_category < 1:
+        parser.error(f"--per-category must be an integer >= 1, got {args.per_category}")
+    made = write_example_meshes(Path(args.out), per_category=args.per_category)
+    print(f"wrote {len(made)} meshes ({len(EXAMPLE_CATEGORIES)} categories x {args.per_category}) into {args.out}")
     return 0
 
 
-__all__ = ["SOLIDS", "DAMAGES", "shape_mesh", "procedural_mesh", "damage", "write_obj", "write_example_meshes"]
+__all__ = ["SOLIDS", "DAMAGES", "EXAMPLE_CATEGORIES", "TABLE_FORMATS", "shape_mesh", "procedural_mesh", "damage",
+           "write_obj", "write_example_meshes"]
 
 
 if __name__ == "__main__":

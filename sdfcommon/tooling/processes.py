@@ -66,7 +66,9 @@ def map_unordered(fn: Callable[..., Any], items: Iterable[Any], workers: int, ar
     """``(item, fn(item, *args))`` for every item, in the order they finish: in this process when
     ``workers`` is 0, else in a ``process_pool`` of ``workers`` processes with at most two items per
     worker in flight (results are handled as they come, never all held at once). When the consumer
-    stops or an item raises, the items not yet started are cancelled and the pool is shut down."""
+    stops or an item raises, the items not yet started are cancelled and the pool is shut down; on
+    Ctrl+C (KeyboardInterrupt) or another exception that is no ``Exception`` the workers are ended
+    at once."""
     if workers == 0:
         for item in items:
             yield item, fn(item, *args)
@@ -83,7 +85,12 @@ def map_unordered(fn: Callable[..., Any], items: Iterable[Any], workers: int, ar
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
                 for job in finished:
                     yield running.pop(job), job.result()
-        except BaseException:
+        except BaseException as err:
+            if not isinstance(err, (Exception, GeneratorExit)):
+                # Ctrl+C or a signal's exception: the items in flight are abandoned, not awaited
+                # (the shutdown below would wait for them to finish).
+                for proc in list((getattr(pool, "_processes", None) or {}).values()):
+                    proc.terminate()
             pool.shutdown(wait=False, cancel_futures=True)
             raise
 

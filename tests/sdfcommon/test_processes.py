@@ -1,10 +1,16 @@
 """sdfcommon.tooling.processes: pools whose workers die with their parent also run the caller's initializer
-(the procedural data generation's workers use one)."""
+(the procedural data generation's workers use one); Ctrl+C ends the workers at once."""
 from __future__ import annotations
 
+import multiprocessing
 import os
+import signal
+import threading
+import time
 
-from sdfcommon.tooling.processes import process_pool
+import pytest
+
+from sdfcommon.tooling.processes import map_unordered, process_pool
 
 
 def _set_marker(value: str) -> None:
@@ -19,3 +25,22 @@ def test_pool_workers_run_the_initializer_after_the_parent_guard():
     with process_pool(2, initializer=_set_marker, initargs=("ready",)) as pool:
         results = [pool.submit(_marker_and_parent).result() for _ in range(4)]
     assert all(marker == "ready" and parent == os.getpid() for marker, parent in results)
+
+
+def _sleep(seconds: float) -> float:
+    time.sleep(seconds)
+    return seconds
+
+
+def test_ctrl_c_ends_the_workers_instead_of_waiting_for_them():
+    """Issue 40 item 16: before, the workers of a map stopped by Ctrl+C went on with the items in
+    flight (here 30 s), and the process waited for them at exit."""
+    main = threading.main_thread().ident
+    threading.Timer(3.0, signal.pthread_kill, (main, signal.SIGINT)).start()  # Ctrl+C once the workers run
+    with pytest.raises(KeyboardInterrupt):
+        for _ in map_unordered(_sleep, [30.0, 30.0], 1):
+            pass
+    end = time.perf_counter() + 5.0
+    while multiprocessing.active_children() and time.perf_counter() < end:
+        time.sleep(0.05)
+    assert not multiprocessing.active_children()

@@ -1,11 +1,13 @@
-"""The build of an NMR-format folder from meshes (``build_dataset``): the plan (which meshes, which
-split), the per-object work in parallel processes (``build_object``: load, render, voxelise; a
-mesh that fails becomes a skipped manifest row with a one-line reason), each object's result
-written atomically into ``<out>/.build/objects`` so that a killed build continues where it stopped,
-then the packing into the files ``svr.nmr.format`` reads (``{cid}_{split}_images.npz`` /
-``_voxels.npz`` with their memory-mappable ``.npy`` copies, ``metadata.json``) and ``manifest.csv``,
-one row per mesh. The same input and settings give the same bytes, however the work was split,
-interrupted or ordered.
+"""The build of an NMR-format folder from meshes (``build_dataset``): the plan (which meshes; the
+splits that id lists give), the per-object work in parallel processes (``build_object``: load,
+render, voxelise; a mesh that fails becomes a skipped manifest row with a one-line reason), each
+object's result written atomically into ``<out>/.build/objects`` so that a killed build continues
+where it stopped, then the splits of the objects built (``ratio_splits``: a mesh that could not be
+built takes no split's place) and the packing into the files ``svr.nmr.format`` reads
+(``{cid}_{split}_images.npz`` / ``_voxels.npz`` with their memory-mappable ``.npy`` copies,
+``metadata.json``) and ``manifest.csv``, one row per mesh. The same input and settings give the
+same bytes, however the work was split, interrupted or ordered. ``out`` must be new, empty or a
+build of this builder: its files are never mixed into another folder's.
 """
 from __future__ import annotations
 
@@ -13,7 +15,10 @@ import collections
 import dataclasses
 import hashlib
 import json
+import logging
+import re
 import shutil
+import signal
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,17 +33,18 @@ from sdfcommon.numerics.raycast import EmbreeCaster
 from sdfcommon.tooling.outputs import (atomic_path, atomic_write, remove_stale_temporaries, write_csv, write_json,
                                        write_npz)
 from sdfcommon.tooling.processes import default_workers, map_unordered
-from svr.data.build.layouts import MeshObject, assign_splits, find_objects
+from svr.data.build.layouts import MIN_OBJECTS_PER_SPLIT_SET, MeshObject, find_objects, list_splits, ratio_splits
 from svr.data.build.meshes import LoadedMesh, MeshError, MeshStatistics, analyse_mesh, load_mesh
 from svr.data.build.rendering import render_mesh
 from svr.data.build.settings import BuildSettings
 from svr.data.build.voxels import VoxelResult, face_normals, solid_voxels
 from svr.data.procedural.appearance import NMR_LIGHTING
-from svr.nmr.format import SPLITS, nmr_file
+from svr.nmr.format import SPLITS
 from svr.nmr.voxels import voxels_to_sdf
 
-# Bump when the renders, voxels or file contents change: part of the plan a resumed build matches.
-BUILDER_VERSION = 1
+# Bump when the renders, voxels, splits or file contents change: part of the plan a resumed build
+# matches. 2: splits cut after the build, from the objects built, each split one from 3 on.
+BUILDER_VERSION = 2
 WORK_DIR = ".build"
 MANIFEST_FILE = "manifest.csv"
 METADATA_FILE = "metadata.json"
@@ -46,6 +52,13 @@ METADATA_FILE = "metadata.json"
 PARALLEL_PACK_OBJECTS = 1000
 MANIFEST_COLUMNS = ("category_id", "object_id", "split", "index", "source", "triangles", "watertight", "components",
                     "inconsistent_edges", "leak_score", "status", "reason")
+# What a folder this builder writes holds (besides hydra's .hydra/, the command's log and the
+# temporaries of atomic writes a kill left): anything else in ``out`` is another folder's, and the
+# build refuses to mix its files into it.
+_BUILD_FILE = re.compile(r"^(metadata\.json|manifest\.csv|\.build|\.hydra|[^/]+\.log|\..+\.tmp|"
+                         r"[A-Za-z0-9][A-Za-z0-9.+-]*_(train|val|test)_(images|voxels|sdf)\.np[yz])$")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -66,13 +79,18 @@ class ObjectResult:
 @dataclass(frozen=True)
 class BuildReport:
     """What a build made: the folder, the objects built, skipped (reason -> count) and left out
-    (not named by the split lists), and whether it was already there."""
+    (not named by the split lists), whether it was already there, the categories ((id, name)
+    pairs), the objects per category and split ({cid: {split: n}}) and warnings (one line each:
+    a category with an empty split)."""
 
     out: Path
     built: int
     skipped: dict
     left_out: int
     already_built: bool = False
+    categories: tuple = ()
+    sizes: dict = dataclasses.field(default_factory=dict)
+    warnings: tuple = ()
 
 
 def _one_line(err: BaseException) -> str:
@@ -153,6 +171,9 @@ def _worker_init() -> None:
     # The processes already share the cores: numba's and torch's own threads would oversubscribe them.
     numba.set_num_threads(1)
     torch.set_num_threads(1)
+    # Ctrl+C reaches the terminal's whole process group: the parent alone stops the build (its
+    # one line), and ends the workers.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _plan(settings: BuildSettings, input_dir: Path, objects: list[MeshObject], left_out: list[MeshObject],
@@ -168,13 +189,23 @@ def _plan_key(plan: dict) -> str:
 
 
 def _check_out(out: Path, key: str, overwrite: bool) -> bool:
-    """Whether ``out`` already holds this build (True), after refusing to replace another one."""
+    """Whether ``out`` already holds this build (True), after refusing a folder that holds files
+    of something else and another build (unless ``overwrite``)."""
+    foreign = sorted(p.name for p in out.iterdir() if not _BUILD_FILE.match(p.name))
     meta_file = out / METADATA_FILE
+    meta = {}
     if meta_file.is_file():
         try:
             meta = json.loads(meta_file.read_text())
         except ValueError:
             meta = {}
+        if not (isinstance(meta, dict) and meta.get("source") == "meshes" and "plan" in meta):
+            foreign.insert(0, METADATA_FILE)
+    if foreign:
+        listed = ", ".join(foreign[:3]) + (", ..." if len(foreign) > 3 else "")
+        raise ValueError(f"out: {out} is not empty and is no build of this command (it holds {listed}); choose a "
+                         f"new or empty folder")
+    if meta_file.is_file():
         if meta.get("plan") == key:
             return True
         if not overwrite:
@@ -184,9 +215,9 @@ def _check_out(out: Path, key: str, overwrite: bool) -> bool:
         for kind in ("images", "voxels", "sdf"):  # the old build's files, whatever its categories
             for old in out.glob(f"*_*_{kind}.np[yz]"):
                 old.unlink()
-    elif any(out.glob("*_images.npz")) and not (out / WORK_DIR).is_dir() and not overwrite:
-        raise ValueError(f"out: {out} holds NMR files this builder did not make; choose another folder or "
-                         f"set overwrite=true")
+    elif any(out.glob("*_*_*.np[yz]")) and not (out / WORK_DIR).is_dir():
+        raise ValueError(f"out: {out} holds NMR files this builder did not make (no {METADATA_FILE}); choose a new "
+                         f"or empty folder")
     return False
 
 
@@ -215,10 +246,16 @@ def _pack_files(job: _PackJob, kinds: tuple) -> None:
         write_npz(job.out / f"{job.category_id}_{job.split}_{kind}.npz", arr_0=np.load(npy, mmap_mode="r"))
 
 
-def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str, str]], objects: list[MeshObject],
-          left_out: list[MeshObject], rows: dict, plan: dict, key: str, workers: int) -> dict:
+def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str, str]], placed: list[MeshObject],
+          unplaced: list[MeshObject], left_out: list[MeshObject], rows: dict, plan: dict, key: str,
+          workers: int) -> dict:
     """Writes the NMR files (each category and split by one of ``workers`` processes: compressing
-    them is most of the work), the manifest and metadata.json (last) from the per-object results."""
+    them is most of the work), the manifest and metadata.json (last) from the per-object results.
+
+    Args:
+        placed: the objects built, with their splits. unplaced: the objects skipped (their rows
+            keep the split a list gave them, else none). left_out: those no split list names.
+    """
     v, s, r = settings.views, settings.image_size, settings.voxel_resolution
     kinds = [("images", (v, 4, s, s), np.uint8), ("voxels", (r, r, r), np.bool_)]
     if settings.sdf_resolution:
@@ -228,13 +265,11 @@ def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str,
     for cid, _ in pairs:
         sizes[cid] = {}
         for split in SPLITS:
-            members = [o for o in objects if o.category_id == cid and o.split == split]
-            ok = [o for o in members if rows[(cid, o.object_id)]["status"] == "ok"]
-            sizes[cid][split] = len(ok)
-            jobs.append(_PackJob(cid, split, tuple(ok), out, work))
-            index = {o.object_id: i for i, o in enumerate(ok)}
-            for o in members:
-                manifest.append({**rows[(cid, o.object_id)], "index": index.get(o.object_id, "")})
+            members = [o for o in placed if o.category_id == cid and o.split == split]
+            sizes[cid][split] = len(members)
+            jobs.append(_PackJob(cid, split, tuple(members), out, work))
+            manifest.extend({**rows[(cid, o.object_id)], "split": split, "index": i} for i, o in enumerate(members))
+        manifest.extend({**rows[(cid, o.object_id)], "index": ""} for o in unplaced if o.category_id == cid)
         for o in left_out:
             if o.category_id == cid:
                 manifest.append({"category_id": cid, "object_id": o.object_id, "split": "",
@@ -243,10 +278,9 @@ def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str,
     jobs.sort(key=lambda j: -len(j.objects))  # the largest first: the last to finish is a small one
     if sum(len(j.objects) for j in jobs) < PARALLEL_PACK_OBJECTS:
         workers = 0  # starting processes would cost more than it saves
-    for _ in map_unordered(_pack_files, jobs, min(workers, len(jobs)), (tuple(kinds),)):
+    for _ in map_unordered(_pack_files, jobs, min(workers, len(jobs)), (tuple(kinds),), initializer=_worker_init):
         pass
     write_csv(out / MANIFEST_FILE, manifest, MANIFEST_COLUMNS)
-    built = sum(1 for m in manifest if m["status"] == "ok")
     meta = {
         "format": "nmr-shapenet",
         "source": "meshes",
@@ -256,8 +290,8 @@ def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str,
         "sizes": sizes,
         "image_shape": [v, 4, s, s],
         "voxel_shape": [r, r, r],
-        "objects": {"built": built, "skipped": sum(1 for m in manifest if m["status"] == "skipped"),
-                    "left_out": len(left_out)},
+        "objects": {"built": len(placed), "skipped": len(unplaced), "left_out": len(left_out)},
+        "warnings": empty_split_warnings(pairs, sizes, manifest),
         "settings": plan["settings"],
         "lighting": dataclasses.asdict(NMR_LIGHTING),
     }
@@ -265,36 +299,73 @@ def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str,
     return meta
 
 
+def empty_split_warnings(pairs: list[tuple[str, str]], sizes: dict, manifest: list[dict]) -> list[str]:
+    """One line per category with an empty split (training on it does not validate on that
+    category, evaluation does not score it).
+
+    Args:
+        pairs: (id, name) per category. sizes: {cid: {split: objects}}. manifest: the rows.
+    """
+    warnings = []
+    for cid, name in pairs:
+        empty = [split for split in SPLITS if not sizes[cid][split]]
+        if not empty:
+            continue
+        rows = [m for m in manifest if m["category_id"] == cid]
+        built = sum(sizes[cid].values())
+        skipped = sum(1 for m in rows if m["status"] == "skipped")
+        warnings.append(f"category {cid} ({name}) has no {'/'.join(empty)} objects ({built} built, {skipped} "
+                        f"skipped): with split_ratios a category needs {MIN_OBJECTS_PER_SPLIT_SET} meshes that build "
+                        f"for one in each split")
+    return warnings
+
+
+def build_progress(out: Path) -> tuple[int, int]:
+    """(objects done, objects planned) of an unfinished build in ``out`` (its ``out/.build``);
+    (0, 0) before it has a plan."""
+    work = Path(out) / WORK_DIR
+    try:
+        planned = len(json.loads((work / "plan.json").read_text())["objects"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0, 0
+    return sum(1 for _ in (work / "objects").rglob("*.json")), planned
+
+
 def build_dataset(settings: BuildSettings) -> BuildReport:
     """Builds ``settings.out`` from the meshes of ``settings.input`` (see the module docstring).
 
     A build whose ``out`` already holds the same build does nothing; one killed before it finished
     continues with the objects not yet done (their results are in ``<out>/.build``); one made with
-    other settings or meshes is refused unless ``overwrite``.
+    other settings or meshes is refused unless ``overwrite``; an ``out`` that holds anything else
+    is refused.
 
     Returns:
         BuildReport.
     Raises:
         FileNotFoundError / ValueError naming the setting or file (missing input, unknown category,
-        an out folder that holds something else).
+        no objects of the layout, an out folder that holds something else).
     """
     input_dir = Path(settings.input).expanduser().resolve()
+    out = Path(settings.out).expanduser()
+    if out.resolve() == input_dir or input_dir in out.resolve().parents:
+        raise ValueError(f"out must be a folder outside input (a later build would read it as a category), "
+                         f"got out={settings.out} inside input={settings.input}")
     pairs, found = find_objects(input_dir, settings.layout, settings.categories)
     split_lists = Path(settings.split_lists).expanduser() if settings.split_lists else None
-    objects, left_out = assign_splits(found, settings.seed, settings.split_ratios, split_lists)
+    objects, left_out = list_splits(found, split_lists)
     plan = _plan(settings, input_dir, objects, left_out, pairs)
     key = _plan_key(plan)
-    out = Path(settings.out).expanduser()
     out.mkdir(parents=True, exist_ok=True)
     if _check_out(out, key, settings.overwrite):
         meta = json.loads((out / METADATA_FILE).read_text())
-        return BuildReport(out, meta["objects"]["built"], {}, meta["objects"]["left_out"], already_built=True)
+        return BuildReport(out, meta["objects"]["built"], {}, meta["objects"]["left_out"], already_built=True,
+                           categories=tuple(pairs), sizes=meta["sizes"], warnings=tuple(meta.get("warnings", ())))
     work = out / WORK_DIR
     plan_file = work / "plan.json"
     if not (plan_file.is_file() and json.loads(plan_file.read_text()) == plan):
         shutil.rmtree(work, ignore_errors=True)  # another build's leftovers
         write_json(plan_file, plan)
-    remove_stale_temporaries(work)
+    remove_stale_temporaries(out)  # a killed build's, in out (the packing) and .build
     sources = {(o.category_id, o.object_id): str(o.path.relative_to(input_dir)) for o in objects}
     rows = {}
     todo = []
@@ -308,6 +379,8 @@ def build_dataset(settings: BuildSettings) -> BuildReport:
         todo.append((obj, sources[(obj.category_id, obj.object_id)]))
     workers = default_workers() if settings.workers is None else settings.workers
     workers = min(workers, len(todo))
+    log.info("building %s from %s: %d meshes in %d categories, %d of them done before, %d left out; %d worker "
+             "processes", out, input_dir, len(objects), len(pairs), len(objects) - len(todo), len(left_out), workers)
     bar = tqdm(total=len(objects), initial=len(objects) - len(todo), unit="obj", desc=f"building {out.name}",
                disable=not settings.progress, smoothing=0.1)
     skipped = collections.Counter(r["reason"] for r in rows.values() if r["status"] != "ok")
@@ -318,6 +391,7 @@ def build_dataset(settings: BuildSettings) -> BuildReport:
         rows[(obj.category_id, obj.object_id)] = row
         if row["status"] != "ok":
             skipped[row["reason"]] += 1
+            log.info("skipped %s: %s", row["source"], row["reason"])
             bar.set_postfix(skipped=sum(skipped.values()), refresh=False)
         bar.update(1)
 
@@ -343,11 +417,16 @@ def build_dataset(settings: BuildSettings) -> BuildReport:
                     record(job[0], row)
     finally:
         bar.close()
-    _pack(out, work, settings, pairs, objects, left_out, rows, plan, key,
-          default_workers() if settings.workers is None else settings.workers)
+    built = [o for o in objects if rows[(o.category_id, o.object_id)]["status"] == "ok"]
+    placed = ratio_splits(built, settings.seed, settings.split_ratios)
+    unplaced = [o for o in objects if rows[(o.category_id, o.object_id)]["status"] != "ok"]
+    meta = _pack(out, work, settings, pairs, placed, unplaced, left_out, rows, plan, key,
+                 default_workers() if settings.workers is None else settings.workers)
     if not settings.keep_work:
         shutil.rmtree(work, ignore_errors=True)
-    return BuildReport(out, sum(1 for r in rows.values() if r["status"] == "ok"), dict(skipped), len(left_out))
+    return BuildReport(out, len(placed), dict(skipped), len(left_out), categories=tuple(pairs), sizes=meta["sizes"],
+                       warnings=tuple(meta["warnings"]))
 
 
-__all__ = ["BUILDER_VERSION", "MANIFEST_COLUMNS", "ObjectResult", "BuildReport", "build_mesh", "build_object", "build_dataset"]
+__all__ = ["BUILDER_VERSION", "MANIFEST_COLUMNS", "ObjectResult", "BuildReport", "build_mesh", "build_object",
+           "build_dataset", "empty_split_warnings", "build_progress"]

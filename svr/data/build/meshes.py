@@ -20,6 +20,10 @@ from scipy.sparse.csgraph import connected_components
 from svr.data.procedural.appearance import NEUTRAL_COLOUR
 
 MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".glb", ".gltf")
+# A mesh with fewer triangles of non-zero area, or whose vertices all lie within this distance
+# (a fraction of its longest side) of one plane, encloses no volume: no object to voxelise.
+MIN_SOLID_TRIANGLES = 4  # a tetrahedron's
+FLAT_TOLERANCE = 1e-5
 
 
 class MeshError(ValueError):
@@ -115,7 +119,7 @@ def load_mesh(path: Path) -> LoadedMesh:
 
     Raises:
         MeshError naming the problem in one line (unreadable file, no triangles, NaN coordinates,
-        a degenerate bounding box).
+        a degenerate mesh: no extent, too few triangles, flat).
     """
     import trimesh  # heavy: only loading needs it
 
@@ -163,7 +167,8 @@ def normalised_mesh(vertices: np.ndarray, faces: np.ndarray, face_colours: Optio
         vertices: (V, 3) float. faces: (F, 3) int. face_colours: (F, 3) in [0, 1] (None: every
         face ``NEUTRAL_COLOUR``). face_texture, uv, textures: as ``LoadedMesh`` (None: untextured).
     Raises:
-        MeshError for NaN coordinates or a bounding box with no extent.
+        MeshError for NaN coordinates, a bounding box with no extent or a mesh that encloses no
+        volume (fewer than ``MIN_SOLID_TRIANGLES`` triangles of non-zero area, or flat).
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -177,12 +182,28 @@ def normalised_mesh(vertices: np.ndarray, faces: np.ndarray, face_colours: Optio
     if not size > 0:
         raise MeshError("degenerate mesh (its bounding box has no extent)")
     v = (v - (lo + hi) / 2.0) / size
+    _check_solid(v, f)
     if face_colours is None:
         face_colours = np.tile(np.asarray(NEUTRAL_COLOUR, dtype=np.float64), (len(f), 1))
     if face_texture is None:
         face_texture, uv = np.full(len(f), -1, dtype=np.int32), np.zeros((len(v), 2))
     return LoadedMesh(v, f.astype(np.int32), np.asarray(face_colours, dtype=np.float64),
                       np.asarray(face_texture, dtype=np.int32), np.asarray(uv, dtype=np.float64), tuple(textures))
+
+
+def _check_solid(vertices: np.ndarray, faces: np.ndarray) -> None:
+    """Refuses a normalised mesh that cannot enclose a volume (see ``MIN_SOLID_TRIANGLES``)."""
+    tri = vertices[faces]
+    doubled_areas = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    n_real = int((doubled_areas > FLAT_TOLERANCE ** 2).sum())
+    if n_real < MIN_SOLID_TRIANGLES:
+        raise MeshError(f"degenerate mesh: {n_real} triangle(s) with non-zero area, a solid needs at least "
+                        f"{MIN_SOLID_TRIANGLES}")
+    used = vertices[np.unique(faces)]
+    centred = used - used.mean(0)
+    normal = np.linalg.eigh(centred.T @ centred)[1][:, 0]  # of the best-fitting plane
+    if not np.abs(centred @ normal).max() > FLAT_TOLERANCE:
+        raise MeshError("degenerate mesh: flat (all its vertices lie in one plane), it encloses no volume")
 
 
 def merged_faces(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -267,5 +288,5 @@ def analyse_mesh(vertices: np.ndarray, faces: np.ndarray) -> tuple[MeshStatistic
     return MeshStatistics(n_faces, watertight, components, inconsistent), np.ascontiguousarray(oriented)
 
 
-__all__ = ["MESH_SUFFIXES", "MeshError", "LoadedMesh", "MeshStatistics", "load_mesh", "normalised_mesh", "merged_faces",
+__all__ = ["MESH_SUFFIXES", "MIN_SOLID_TRIANGLES", "FLAT_TOLERANCE", "MeshError", "LoadedMesh", "MeshStatistics", "load_mesh", "normalised_mesh", "merged_faces",
            "analyse_mesh"]

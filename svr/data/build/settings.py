@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from typing import Optional
 
 from sdfcommon.tooling.checks import check_float, check_int
-from svr.data.build.layouts import LAYOUTS
+from svr.data.build.layouts import LAYOUTS, check_split_ratios
 from svr.data.build.voxels import DIRECTION_SETS
 
 # The settings that change the data (part of the build's plan: a rerun with other values starts
@@ -24,11 +24,13 @@ class BuildSettings:
     """The builder's settings (configs/build.yaml; its comments say more).
 
     Attributes:
-        input: the mesh folder (one subfolder per category). out: the NMR-format folder made.
+        input: the mesh folder (one subfolder per category). out: the NMR-format folder made
+            (outside ``input``: ``build_dataset`` checks).
         layout: "auto", "shapenet_v1", "shapenet_v2" or "flat".
         categories: ids or names to build (None: every category folder with meshes).
         split_lists: a folder of ``{cid}_{split}ids.txt`` lists (None: seeded ratios).
-        split_ratios: train, val, test fractions for categories without lists. seed: their shuffle.
+        split_ratios: train, val, test fractions (each > 0, summing to 1) for categories without
+            lists. seed: their shuffle.
         views, elevation, distance: the cameras (NMR: 24, 30 degrees, 2.732).
         image_size: image side (NMR: 64). supersample: rays per pixel side.
         voxel_resolution: voxel grid side (NMR: 32). ray_directions: 3, 7 or 13 line directions
@@ -68,12 +70,7 @@ class BuildSettings:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {self.layout!r}")
         if isinstance(self.categories, str):
             raise ValueError(f"categories must be a list of ids or names, got the string {self.categories!r}")
-        if len(self.split_ratios) != 3:
-            raise ValueError(f"split_ratios must be three numbers (train, val, test), got {self.split_ratios!r}")
-        for k, r in enumerate(self.split_ratios):
-            check_float(r, f"split_ratios[{k}]", minimum=0.0)
-        if not sum(self.split_ratios) > 0:
-            raise ValueError(f"split_ratios must not all be 0, got {self.split_ratios!r}")
+        check_split_ratios(self.split_ratios)
         check_int(self.seed, "seed")
         check_int(self.views, "views", minimum=1)
         check_float(self.elevation, "elevation", -89.0, 89.0)

@@ -37,11 +37,12 @@ FAST = ["workers=0", "progress=false", "supersample=2", "ray_directions=7"]
 
 @pytest.fixture(scope="module")
 def meshes(tmp_path_factory) -> Path:
-    """The example input (4 categories, 6 meshes in 6 formats) plus an empty and a corrupt mesh."""
+    """The example input at 3 meshes per category (3 categories, 9 meshes in 5 formats) plus an
+    empty and a corrupt table."""
     folder = tmp_path_factory.mktemp("meshes")
-    write_example_meshes(folder, resolution=28)
-    (folder / "solids" / "empty.obj").write_text("")
-    (folder / "solids" / "corrupt.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
+    write_example_meshes(folder, resolution=28, per_category=3)
+    (folder / "table" / "empty.obj").write_text("")
+    (folder / "table" / "corrupt.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 99\n")
     return folder
 
 
@@ -56,14 +57,14 @@ def _manifest(folder: Path) -> list[dict]:
 
 def test_the_loader_reads_what_the_command_writes(meshes, tmp_path, monkeypatch, capsys):
     out = tmp_path / "nmr"
-    run_entry(main, [f"input={meshes}", f"out={out}", "split_ratios=[1,0,0]", *FAST], monkeypatch)
+    run_entry(main, [f"input={meshes}", f"out={out}", *FAST], monkeypatch)
     printed = capsys.readouterr().out
-    assert "built 6 objects, skipped 2" in printed and "manifest.csv" in printed
+    assert "built 9 objects, skipped 2" in printed and "manifest.csv" in printed
     meta = read_metadata(out)
-    assert meta["categories"] == [["03001627", "chair"], ["04256520", "sofa"], ["solids", "solids"],
-                                  ["04379243", "table"]]  # by folder name
+    assert meta["categories"] == [["03001627", "chair"], ["04256520", "sofa"], ["04379243", "table"]]  # by folder name
+    assert all(meta["sizes"][cid] == {"train": 1, "val": 1, "test": 1} for cid, _ in meta["categories"])
     data = NMRDataset(out, "train")
-    assert len(data) == 6
+    assert len(data) == 3
     item = data[0]
     assert item["images"].shape == (24, 4, 64, 64) and item["voxels"].shape == (32, 32, 32)
     assert item["category_name"] == "chair" and item["voxels"].any()
@@ -78,10 +79,11 @@ def test_the_loader_reads_what_the_command_writes(meshes, tmp_path, monkeypatch,
     assert rows["chair_0"]["source"] == "chair/chair_0.obj" and rows["chair_0"]["index"] == "0"
     assert rows["empty"]["status"] == "skipped" and rows["empty"]["reason"] == "no triangles in the file"
     assert rows["corrupt"]["status"] == "skipped" and "\n" not in rows["corrupt"]["reason"]
-    assert float(rows["sphere"]["leak_score"]) < 0.01 and int(rows["torus"]["triangles"]) > 100
+    assert float(rows["table_0"]["leak_score"]) < 0.05 and int(rows["table_0"]["triangles"]) > 100
+    assert rows["table_0"]["source"] == "table/table_0.stl" and rows["table_2"]["source"] == "table/table_2.glb"
     # A second run finds the build done and changes nothing; another build is refused there ...
     before = _data_files(out)
-    run_entry(main, [f"input={meshes}", f"out={out}", "split_ratios=[1,0,0]", *FAST], monkeypatch)
+    run_entry(main, [f"input={meshes}", f"out={out}", *FAST], monkeypatch)
     assert "nothing to do" in capsys.readouterr().out and _data_files(out) == before
     line = expect_usage_error(main, [f"input={meshes}", f"out={out}", "seed=1", *FAST], monkeypatch, capsys)
     assert "holds another build" in line and _data_files(out) == before
@@ -162,13 +164,13 @@ def test_a_killed_build_continues_to_the_bytes_of_an_uninterrupted_one(meshes, t
         proc.send_signal(signal.SIGKILL)
         proc.wait()
     done = len(list((cut / ".build" / "objects").rglob("*.json")))
-    assert 2 <= done < 8 and not (cut / "metadata.json").exists()
+    assert 2 <= done < 11 and not (cut / "metadata.json").exists()
     run_entry(main, [*args, f"out={cut}"], monkeypatch)
     assert _data_files(cut) == _data_files(whole)
     assert not (cut / ".build").exists()
     splits = {r["split"] for r in _manifest(cut) if r["status"] == "ok"}
     assert splits <= {"train", "val", "test"} and json.loads((cut / "metadata.json").read_text())["objects"] == {
-        "built": 6, "skipped": 2, "left_out": 0}
+        "built": 9, "skipped": 2, "left_out": 0}
 
 
 def test_bad_input_is_one_line(meshes, tmp_path, monkeypatch, capsys):
@@ -235,7 +237,7 @@ def test_a_worker_killed_mid_build_costs_no_object(meshes, tmp_path, monkeypatch
     thread.join(5)
     assert killed, "no worker was found to kill"
     rows = _manifest(out)
-    assert sum(r["status"] == "ok" for r in rows) == 6 and sum(r["status"] == "skipped" for r in rows) == 2
+    assert sum(r["status"] == "ok" for r in rows) == 9 and sum(r["status"] == "skipped" for r in rows) == 2
     assert not any("worker process died" in r["reason"] for r in rows)
     # The same bytes as a build in this process alone, without a death.
     alone = tmp_path / "alone"
