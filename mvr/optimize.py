@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Optional, Sequence, Union
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 import torch
@@ -86,20 +86,39 @@ class OptimSettings:
         for name in ("hard_view_updates", "easy_view_updates", "patience"):
             check_int(getattr(self, name), name, minimum=1)
         check_int(self.min_passes, "min_passes", minimum=1)
-        for name in ("max_passes", "max_seconds"):
-            value = getattr(self, name)
-            if isinstance(value, (list, tuple)):
-                object.__setattr__(self, name, tuple(value))
+        object.__setattr__(self, "max_passes", _per_level(self.max_passes, "max_passes", "an integer >= 1",
+                                                          _is_pass_count))
+        object.__setattr__(self, "max_seconds", _per_level(self.max_seconds, "max_seconds",
+                                                           "a positive number or null (no limit)", _is_time_limit))
 
     def for_level(self, name: str, level: int):
         """A per-level setting (``max_passes``, ``max_seconds``) for level ``level`` (0-based); a
         list shorter than the schedule repeats its last entry."""
         value = getattr(self, name)
         if isinstance(value, tuple):
-            if not value:
-                raise ValueError(f"{name} must be a number or a non-empty list, got []")
             return value[min(level, len(value) - 1)]
         return value
+
+
+def _is_pass_count(v: object) -> bool:
+    return not isinstance(v, bool) and isinstance(v, int) and v >= 1
+
+
+def _is_time_limit(v: object) -> bool:
+    return v is None or (not isinstance(v, bool) and isinstance(v, (int, float)) and math.isfinite(v) and v > 0)
+
+
+def _per_level(value: PerLevel, name: str, expected: str, valid: Callable[[object], bool]) -> PerLevel:
+    """A per-level setting, one value or a non-empty list of them (one per level; made a tuple),
+    each of which ``valid`` accepts.
+
+    Raises:
+        ValueError: ``"<name> must be <expected>, or a non-empty list of them (one per level), got <value!r>"``.
+    """
+    values = list(value) if isinstance(value, (list, tuple)) else [value]
+    if not values or not all(valid(v) for v in values):
+        raise ValueError(f"{name} must be {expected}, or a non-empty list of them (one per level), got {value!r}")
+    return tuple(values) if isinstance(value, (list, tuple)) else value
 
 
 @dataclass(frozen=True)
@@ -107,7 +126,8 @@ class LevelReport:
     """What one level did.
 
     Attributes:
-        level: 0-based index; resolution: grid samples per side; image_size: image side (pixels).
+        level: the level's number, 1 for the first (as the log, levels.json/csv and the checkpoints
+            ``level_01.pt``... count); resolution: grid samples per side; image_size: image side (pixels).
         passes, updates: passes and Adam updates made; seconds: wall time of the level.
         loss_start, loss_end: mean view loss (weighted image + silhouette) before and after.
         image_loss, silhouette_loss: their mean parts at the end; eikonal, laplacian: the
@@ -226,7 +246,8 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
     Args:
         grid: the starting grid (one grid, B = 1); its values are copied, not changed.
         losses: the views, targets and settings (weights, Adam, stopping rules: ``losses.settings``).
-        level: 0-based level index (for per-level settings).
+        level: 0-based level index (for per-level settings and the seed); the report numbers it
+            ``level + 1``.
         seed: seeds the order of the views.
         progress: show a tqdm bar over the passes.
     Returns:
@@ -241,7 +262,7 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
     with torch.no_grad():
         _, eik, lap = losses.regulariser(final)
     report = LevelReport(
-        level=level, resolution=grid.resolution[0], image_size=losses.cameras.image_size[0],
+        level=level + 1, resolution=grid.resolution[0], image_size=losses.cameras.image_size[0],
         passes=len(passes.history), updates=passes.updates, seconds=time.perf_counter() - t_start,
         loss_start=passes.loss_start, loss_end=float(passes.view_loss.mean()),
         image_loss=float(passes.image_loss.mean()), silhouette_loss=float(passes.silhouette_loss.mean()),
@@ -305,7 +326,7 @@ def _run_passes(fit: _Fitting, losses: ViewLosses, level: int, seed: int, progre
     updates, stalls, stop = 0, 0, "max_passes"
     view_loss, img_v, sil_v = losses.all_views(fit.detached())
     loss_start = float(view_loss.mean())
-    bar = tqdm(total=max_passes, desc=description or f"level {level}", disable=not progress, leave=True,
+    bar = tqdm(total=max_passes, desc=description or f"level {level + 1}", disable=not progress, leave=True,
                dynamic_ncols=True)
     try:
         for pass_index in range(max_passes):

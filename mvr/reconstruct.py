@@ -21,16 +21,19 @@ from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 from sdfcommon.tooling import outputs
 from sdfcommon.numerics.meshing import sdf_to_mesh
 from sdfcommon.tooling.checks import check_float, check_instance, check_int, check_positive
+from sdfcommon.tooling.hardware import check_backend
 from sdfcommon.tooling.pictures import labelled_grid
 from sdfcommon.tooling.serialization import load_torch
 
 from .metrics import NORMALISATION, surface_distances
 from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
 from .schedule import Schedule
-from .targets import Target, TargetImages, make_target
+from .targets import NORMAL_MODES, Target, TargetImages, make_target
 
 log = logging.getLogger("mvr")
 
+# Seeds go to numpy (which takes [0, 2^32 - 1]) and, combined with a level, to torch's generators.
+MAX_SEED = 2**32 - 1
 LEVEL_COLUMNS = ("level", "resolution", "image_size", "passes", "updates", "seconds", "loss_start", "loss_end",
                  "image_loss", "silhouette_loss", "eikonal", "laplacian", "stop_reason")
 
@@ -74,6 +77,12 @@ class TargetSettings:
     extent: float = 1.6
     normals: str = "smooth"
     mesh_resolution: int = 192
+
+    def __post_init__(self) -> None:
+        check_positive(self.extent, "extent")
+        if self.normals not in NORMAL_MODES:
+            raise ValueError(f"normals must be one of {', '.join(NORMAL_MODES)}, got {self.normals!r}")
+        check_int(self.mesh_resolution, "mesh_resolution", minimum=16)
 
 
 @dataclass(frozen=True)
@@ -132,8 +141,23 @@ def _fingerprint(settings: dict) -> str:
     return hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def _checkpoint_path(out_dir: Path, level: int) -> Path:
-    return out_dir / "checkpoints" / f"level_{level:02d}.pt"
+def _checkpoint_path(out_dir: Path, number: int) -> Path:
+    """Where level ``number`` (1 for the first, as the log counts) is checkpointed."""
+    return out_dir / "checkpoints" / f"level_{number:02d}.pt"
+
+
+def _level_checkpoints(out_dir: Path) -> list[Path]:
+    """The level checkpoints in ``out_dir``, in level order."""
+    folder = Path(out_dir) / "checkpoints"
+    return sorted(folder.glob("level_*.pt")) if folder.is_dir() else []
+
+
+def finished_levels(out_dir: Union[str, Path]) -> int:
+    """The number of the last level checkpointed in ``out_dir`` (its ``checkpoints/level_NN.pt``),
+    the level a rerun resumes after; 0 where there is none."""
+    numbers = [int(p.stem[len("level_"):]) for p in _level_checkpoints(Path(out_dir))
+               if p.stem[len("level_"):].isdigit()]
+    return max(numbers, default=0)
 
 
 def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int) -> Optional[_ResumePoint]:
@@ -142,7 +166,7 @@ def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int) -> Option
     Raises:
         ValueError: the checkpoint is unreadable, not mvr's, of other settings or beyond the schedule.
     """
-    found = sorted((out_dir / "checkpoints").glob("level_*.pt")) if (out_dir / "checkpoints").is_dir() else []
+    found = _level_checkpoints(out_dir)
     if not found:
         return None
     try:
@@ -156,11 +180,13 @@ def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int) -> Option
         raise ValueError(
             f"out_dir {str(out_dir)!r} holds checkpoints of a run with other settings ({found[-1].name}); "
             f"use another out_dir, or resume=false to start this one afresh")
-    level = int(ckpt["level"])
-    if level >= n_levels:
-        raise ValueError(f"checkpoint {str(found[-1])!r} is for level {level}, beyond the schedule's {n_levels}")
-    return _ResumePoint(next_level=level + 1, values=ckpt["values"], bbox_min=ckpt["bbox_min"],
-                        bbox_max=ckpt["bbox_max"], reports=[LevelReport(**r) for r in ckpt["reports"]])
+    number = int(ckpt["level"])
+    if not 1 <= number <= n_levels:
+        raise ValueError(f"checkpoint {str(found[-1])!r} is for level {number}, not one of the schedule's levels "
+                         f"1 to {n_levels}; use another out_dir, or resume=false to start this one afresh")
+    return _ResumePoint(next_level=number, values=ckpt["values"], bbox_min=ckpt["bbox_min"],
+                        bbox_max=ckpt["bbox_max"], reports=[LevelReport(**r) for r in ckpt["reports"]],
+                        checkpoint=found[-1])
 
 
 def perturbed_cameras(cameras: Cameras, offsets: torch.Tensor) -> Cameras:
@@ -219,21 +245,27 @@ def reconstruct(
             image size, passes, updates, losses, seconds, history), ``levels.csv`` (the same
             without the per-pass history), ``metrics.json`` (hausdorff_rel, chamfer_rel,
             seconds, ... and the normalisation used), ``settings.json`` (every setting of the
-            run) and ``checkpoints/level_XX.pt`` (the grid after each finished level).
+            run) and ``checkpoints/level_NN.pt`` (the grid after each finished level; levels are
+            numbered from 1, as the log, levels.json and levels.csv count them).
         rig, grid, target_settings, schedule, optim, noise, evaluation: the settings (plain objects).
         scene: lights, material and effects (None: ``default_scene()``); it must ask for "shading",
             and for "silhouette" when ``optim.silhouette_weight > 0``.
         trace: the renderer's march settings; backend: the renderer's march backend.
-        seed: seeds the noise and the view order.
-        resume: continue after the last level checkpointed in out_dir (with the same settings);
-            False starts afresh (old checkpoints are replaced).
+        seed: seeds the noise, the view order and the surface samples; an integer in [0, 2^32 - 1].
+        resume: continue after the last level checkpointed in out_dir (with the same settings;
+            metrics.json's ``resumed_from_level`` names that level); False starts afresh (old
+            checkpoints are replaced).
         progress: tqdm bars per level.
     Returns:
         ReconstructionResult (final grid, mesh, metrics dict, level reports).
+    Raises:
+        ValueError, TypeError, FileNotFoundError: settings or a target that are refused (before
+            anything is written).
     """
     t_run = time.perf_counter()
     scene = default_scene() if scene is None else scene
-    _check_settings(scene, optim, target_settings, grid)
+    check_run_settings(scene=scene, optim=optim, target_settings=target_settings, grid=grid, backend=backend,
+                       seed=seed)
     plan = _plan_run(target, out_dir, rig=rig, grid=grid, target_settings=target_settings, schedule=schedule,
                      optim=optim, noise=noise, evaluation=evaluation, scene=scene, trace=trace, backend=backend,
                      seed=seed)
@@ -280,14 +312,16 @@ class _RunPlan:
 
 @dataclass(frozen=True)
 class _ResumePoint:
-    """The last finished level's checkpoint: the next level to fit, the grid (values (1, N, N, N),
-    its box) and the reports of the levels done."""
+    """The last finished level's checkpoint (``checkpoint``): the next level to fit (its 0-based
+    index, which is the number of the level finished), the grid (values (1, N, N, N), its box) and
+    the reports of the levels done."""
 
     next_level: int
     values: torch.Tensor
     bbox_min: torch.Tensor
     bbox_max: torch.Tensor
     reports: list
+    checkpoint: Path
 
 
 @dataclass(frozen=True)
@@ -312,10 +346,25 @@ class _Seconds:
     run_start: float
 
 
-def _check_settings(scene: Scene, optim: OptimSettings, target_settings: TargetSettings,
-                    grid: GridSettings) -> None:
-    """Refuses settings that do not fit together (each object checked itself when it was made)."""
+def check_run_settings(*, scene: Scene, optim: OptimSettings, target_settings: TargetSettings,
+                       grid: GridSettings, backend: str, seed: int) -> None:
+    """Refuses the settings of a run that no settings object checks itself: those that do not fit
+    together, the scene's light intensities (``renderer.Scene`` takes any), the march backend (a
+    name the renderer knows that runs here: ``sdfcommon.tooling.hardware.check_backend``) and the
+    seed. ``reconstruct`` calls it before any
+    work, and the command when it builds its settings (``mvr.settings.MVRSettings``).
+
+    Raises:
+        ValueError, TypeError: naming the setting by its key in configs/mvr.yaml.
+    """
+    check_int(seed, "seed", minimum=0, maximum=MAX_SEED)
     check_instance(scene, "scene", Scene, "a renderer.Scene")
+    if scene.camera_light is not None:
+        check_float(scene.camera_light, "scene.camera_light", minimum=0)
+    check_float(scene.ambient, "scene.ambient", minimum=0)
+    for k, light in enumerate(scene.lights):
+        check_float(light.intensity, f"scene.lights[{k}].intensity", minimum=0)
+    check_backend(backend)
     if not scene.wants("shading"):
         raise ValueError("scene.effects must include 'shading' (the image loss compares shaded images)")
     if optim.silhouette_weight > 0 and not scene.wants("silhouette"):
@@ -364,7 +413,8 @@ def _starting_grid(plan: _RunPlan, state: Optional[_ResumePoint]) -> tuple[int, 
         radius = plan.init_radius
         return 0, SDFGrid.from_function(lambda p: p.norm(dim=-1) - radius, plan.resolutions[0], plan.lo, plan.hi), []
     grid = SDFGrid(state.values, state.bbox_min, state.bbox_max)
-    log.info("resuming after level %d (%d^3) from %s", state.next_level - 1, grid.resolution[0], plan.out)
+    log.info("resuming after level %d of %d (%d^3) from %s", state.next_level, len(plan.resolutions),
+             grid.resolution[0], state.checkpoint)
     return state.next_level, grid, state.reports
 
 
@@ -410,9 +460,10 @@ def _level_losses(plan: _RunPlan, views: TargetImages, cams_true: Cameras, cam_o
 
 
 def _save_level(plan: _RunPlan, level: int, grid: SDFGrid, reports: list[LevelReport]) -> None:
-    """The finished level's checkpoint (the point a rerun resumes from) and levels.json/csv."""
-    outputs.write_torch(_checkpoint_path(plan.out, level), {
-        "fingerprint": plan.fingerprint, "level": level, "values": grid.values.detach().clone(),
+    """The finished level's checkpoint (the point a rerun resumes from) and levels.json/csv
+    (``level``: its 0-based index; the checkpoint is numbered ``level + 1``, as the log counts)."""
+    outputs.write_torch(_checkpoint_path(plan.out, level + 1), {
+        "fingerprint": plan.fingerprint, "level": level + 1, "values": grid.values.detach().clone(),
         "bbox_min": grid.bbox_min, "bbox_max": grid.bbox_max,
         "reports": [asdict(r) for r in reports]})
     _write_levels(plan.out, reports)
@@ -444,7 +495,9 @@ def _write_final_grid(out: Path, fit: _Fit, tgt: Target, fill: bool) -> tuple[SD
     mesh = sdf_to_mesh(values, final.bbox_min.numpy(), final.bbox_max.numpy())
     outputs.write_npz(out / "grid.npz", values=values.numpy().astype(np.float32),
                       bbox_min=final.bbox_min.numpy(), bbox_max=final.bbox_max.numpy())
-    outputs.write_mesh(out / "target.ply", tgt.mesh)
+    # With its vertex normals whichever way the run went (trimesh writes them only once computed,
+    # which shading the target views does: a resumed run that renders no view would lack them).
+    outputs.atomic_write(out / "target.ply", lambda f: f.write(tgt.mesh.export(file_type="ply", vertex_normal=True)))
     if len(mesh.faces):
         outputs.write_mesh(out / "mesh.ply", mesh)
         outputs.write_mesh(out / "mesh.obj", mesh)

@@ -13,7 +13,8 @@ heap for reuse (``sdfcommon.tooling.host_memory``, shared with single-view train
 floats: Adam's second moments of the tiny gradients that far-away grid values receive underflow
 into denormals, which x86 CPUs process far more slowly than normal floats, and flushing them to
 zero (FTZ/DAZ, ``torch.set_flush_denormal``, for the calling thread) makes an update at 64^3
-faster.
+faster. (How the command stops on Ctrl+C or SIGTERM is ``sdfcommon.tooling.stopping``'s, shared
+with the mesh builder.)
 """
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """The multi-view command's typed settings: ``MVRSettings``, built from configs/mvr.yaml by
-``sdfcommon.tooling.settings.build_settings`` (an unknown or mistyped key fails before anything is
-written), its ``RuntimeSettings``, and the helpers benchmarks and tests use to run exactly the
+``sdfcommon.tooling.settings.build_settings`` (an unknown, mistyped or out-of-range value fails
+before anything is written), its ``RuntimeSettings``, the ``${mvr_shapes:}`` resolver its --help
+lists the built-in shapes with, and the helpers benchmarks and tests use to run exactly the
 command's settings (``compose_config``, ``reconstruct_kwargs``, ``reconstruct_with_overrides``)."""
 from __future__ import annotations
 
@@ -8,12 +9,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from mvr.optimize import OptimSettings
 from mvr.reconstruct import (GridSettings, NoiseSettings, ReconstructionResult, RigSettings, ScoringSettings,
-                             TargetSettings, reconstruct)
+                             TargetSettings, check_run_settings, reconstruct)
 from mvr.schedule import Schedule
+from mvr.shapes import SHAPES
 from renderer import Scene, TraceSettings
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.commands import compose
@@ -37,6 +39,10 @@ class RuntimeSettings:
 @dataclass(frozen=True)
 class MVRSettings:
     """The multi-view command's settings (configs/mvr.yaml; its comments say more).
+
+    Every setting but the target is checked when the settings are made (``__post_init__``: what
+    each object checks itself, then ``mvr.reconstruct.check_run_settings``), before the command
+    makes its folder; the target when the run starts, before it writes anything.
 
     Attributes:
         target: a built-in shape (``mvr.SHAPES``) or a watertight mesh file.
@@ -64,6 +70,14 @@ class MVRSettings:
     scene: Scene
     trace: TraceSettings
     paths: PathSettings
+
+    def __post_init__(self) -> None:
+        # Made when the settings are built: before the run folder is made
+        # (sdfcommon.tooling.commands.RunFolderGuard) and before any work. The target is checked
+        # when the run starts (mvr.make_target, before anything is written): settings name it
+        # without reading the file system (benchmarks build them with a placeholder target).
+        check_run_settings(scene=self.scene, optim=self.optim, target_settings=self.target_settings, grid=self.grid,
+                           backend=self.backend, seed=self.seed)
 
 
 # The fields of MVRSettings that are keyword arguments of mvr.reconstruct (target and out_dir aside).
@@ -96,6 +110,10 @@ def reconstruct_with_overrides(target: str, out_dir: Union[str, Path],
     """
     cfg = compose_config([f"target={target}", f"out_dir={out_dir}", "progress=false", *overrides])
     return reconstruct(target, out_dir, **reconstruct_kwargs(cfg))
+
+
+# ${mvr_shapes:} in configs/mvr.yaml's help: the built-in shapes, as mvr.shapes defines them.
+OmegaConf.register_new_resolver("mvr_shapes", lambda: ", ".join(SHAPES), replace=True)
 
 
 __all__ = ["MVRSettings", "RuntimeSettings", "RECONSTRUCT_KEYS", "reconstruct_kwargs", "compose_config",

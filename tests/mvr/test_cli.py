@@ -1,7 +1,10 @@
 """``python -m mvr``: a user's mistake is one line with exit status 2 (issue 17 items 7 and 9), and a
-refused run leaves out_dir as it was (item 8)."""
+refused run leaves out_dir as it was (item 8); every setting is checked before any work, --help names
+the shapes and groups, and a stopped run says in one line how to resume (issue 40)."""
 from __future__ import annotations
 
+import importlib
+import json
 from pathlib import Path
 
 import numpy as np
@@ -11,11 +14,14 @@ import trimesh
 
 from mvr.__main__ import main
 
-from ..entry_points import expect_usage_error, files_under
+# The module (the package's name ``mvr.reconstruct`` is the function).
+RECONSTRUCT_MODULE = importlib.import_module("mvr.reconstruct")
+
+from ..entry_points import expect_usage_error, files_under, run_entry
 
 # No process-wide runtime changes in the test process; tiny settings in case a run gets far.
-QUIET = ["runtime.threads=null", "runtime.tune_malloc=false", "runtime.flush_denormal=false", "progress=false",
-         "schedule.resolutions=[8]", "optim.max_passes=1", "target_settings.mesh_resolution=48",
+RUNTIME = ["runtime.threads=null", "runtime.tune_malloc=false", "runtime.flush_denormal=false", "progress=false"]
+QUIET = [*RUNTIME, "schedule.resolutions=[8]", "optim.max_passes=1", "target_settings.mesh_resolution=48",
          "evaluation.samples=500"]
 
 
@@ -100,3 +106,122 @@ def test_a_corrupt_level_checkpoint_is_one_line(content, tmp_path, monkeypatch, 
     line = refused(["target=sphere", f"out_dir={out}"], monkeypatch, capsys)
     assert "level_00.pt" in line and "resume=false" in line and "weights_only" not in line
     assert files_under(out) == before
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue 40: every setting checked before any work (items 5, 13); --help (item 18); Ctrl+C and
+# SIGTERM (item 16)
+
+
+def _no_work(*args, **kwargs):
+    raise AssertionError("the run started although its settings are refused")
+
+
+@pytest.mark.parametrize("override, message", [
+    ("seed=-1", "seed must be an integer in [0, 4294967295], got -1"),
+    ("seed=4294967296", "seed must be an integer in [0, 4294967295]"),
+    ("optim.max_passes=0", "optim.max_passes must be"),
+    ("optim.max_passes=-5", "optim.max_passes must be"),
+    ("optim.max_passes=[3,0]", "optim.max_passes must be"),
+    ("optim.max_passes=[]", "optim.max_passes must be"),
+    ("optim.max_seconds=-1", "optim.max_seconds must be"),
+    ("scene.camera_light=-1", "scene.camera_light must be a finite number >= 0, got -1"),
+    ("scene.ambient=-0.5", "scene.ambient must be a finite number >= 0"),
+    ("target_settings.extent=0", "target_settings.extent must be a positive"),
+    ("target_settings.normals=bumpy", "target_settings.normals must be one of"),
+    ("target_settings.mesh_resolution=8", "target_settings.mesh_resolution must be an integer >= 16"),
+    ("backend=bogus", "backend must be one of"),
+])
+def test_every_setting_is_refused_before_any_work(override, message, tmp_path, monkeypatch, capsys):
+    """Items 5 and 13: a bad seed, pass limit, light or target setting is one line naming it, before
+    the fit starts and before out_dir (given or the default) is made; the run never begins. (A bad
+    target is refused when the run starts, before it writes anything: the test above.)"""
+    monkeypatch.setattr("mvr.__main__.reconstruct", _no_work)
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    out = tmp_path / "out"
+    for args in (["target=sphere", f"out_dir={out}", override], ["target=sphere", override]):
+        # Not QUIET: its own optim.max_passes and mesh_resolution would win over the override.
+        line = expect_usage_error(main, [*RUNTIME, *args], monkeypatch, capsys, "sdfdiff-mvr")
+        assert message in line, line
+    assert not out.exists() and list(cwd.iterdir()) == []
+
+
+def test_help_lists_the_shapes_and_both_groups(monkeypatch, capsys):
+    """Item 18: --help names the built-in shapes and the mvr/noise and mvr/preset groups."""
+    from mvr import SHAPES
+
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        run_entry(main, ["--help"], monkeypatch)
+    assert stop.value.code in (0, None)
+    text = capsys.readouterr().out
+    shapes = next(line for line in text.splitlines() if "sphere" in line and "torus" in line)
+    assert all(name in shapes for name in SHAPES), shapes
+    assert "mvr/preset: default, paper" in text and "mvr/noise: camera, image, none" in text
+
+
+def _stop_during(level_number: int, signum: int):
+    """An ``optimise_level`` that stops the run as a signal would when level ``level_number`` (1-based)
+    starts, and fits the others as usual."""
+    import os
+    import signal
+
+    real = RECONSTRUCT_MODULE.optimise_level
+
+    def fit(grid, losses, level, *args, **kwargs):
+        if level + 1 == level_number:
+            if signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            os.kill(os.getpid(), signum)
+            raise AssertionError("SIGTERM did not stop the run")
+        return real(grid, losses, level, *args, **kwargs)
+
+    return fit
+
+
+def _stopped(args: list[str], monkeypatch, capsys) -> tuple[object, str]:
+    """The exit status of ``main`` with ``args`` (or how it ended otherwise) and its stderr."""
+    capsys.readouterr()
+    try:
+        run_entry(main, args, monkeypatch)
+        code: object = "returned"
+    except SystemExit as stop:
+        code = stop.code
+    except KeyboardInterrupt:  # not caught: pytest itself would stop
+        code = "KeyboardInterrupt"
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("signame, status, said", [("SIGINT", 130, "Ctrl+C"), ("SIGTERM", 143, "SIGTERM")])
+def test_a_stopped_run_says_so_in_one_line_and_a_rerun_resumes(signame, status, said, tmp_path, monkeypatch,
+                                                                 capsys):
+    """Item 16: Ctrl+C (SIGINT) or SIGTERM during a level is one line, no traceback, that names how
+    to resume; exit status 130 / 143; the same command then resumes after the last finished level."""
+    import signal
+
+    def unhandled(*_):  # where mvr installs no handler, the test process must not die of the signal
+        raise RuntimeError("SIGTERM reached the test's own handler")
+
+    previous = signal.signal(signal.SIGTERM, unhandled)
+    try:
+        out = tmp_path / "run"
+        args = ["target=sphere", f"out_dir={out}", *RUNTIME, "schedule.resolutions=[8,12]", "optim.max_passes=1",
+                "target_settings.mesh_resolution=48", "evaluation.samples=500"]
+        monkeypatch.setattr(RECONSTRUCT_MODULE, "optimise_level", _stop_during(2, getattr(signal, signame)))
+        code, err = _stopped(args, monkeypatch, capsys)
+        assert code == status, err[-3000:]
+        assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+        lines = [line for line in err.splitlines() if line.strip()]
+        assert len(lines) == 1, err
+        assert lines[0].startswith("sdfdiff-mvr: stopped by ") and said in lines[0], lines[0]
+        assert "after level 1 of 2" in lines[0] and f"out_dir={out}" in lines[0] and "resume" in lines[0]
+        assert signal.getsignal(signal.SIGTERM) is unhandled  # mvr's handler is gone again
+        assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["level_01.pt"]
+        monkeypatch.undo()  # the real optimise_level
+        run_entry(main, args, monkeypatch)
+        metrics = json.loads((out / "metrics.json").read_text())
+        assert metrics["resumed_from_level"] == 1 and metrics["levels"] == 2
+    finally:
+        signal.signal(signal.SIGTERM, previous)

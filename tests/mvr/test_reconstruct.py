@@ -1,7 +1,10 @@
 """End to end: small reconstructions converge; outputs, resume and the command line work."""
 from __future__ import annotations
 
+import csv
+import dataclasses
 import json
+import logging
 import subprocess
 import sys
 from pathlib import Path
@@ -11,7 +14,7 @@ import pytest
 import trimesh
 
 from mvr import (GridSettings, NoiseSettings, OptimSettings, Schedule, ScoringSettings, TargetSettings,
-                 configure_runtime, reconstruct)
+                 configure_runtime, default_scene, reconstruct)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -40,7 +43,7 @@ def test_sphere_of_another_radius_converges(tmp_path):
     losses = [r.loss_end for r in result.levels]
     assert losses[-1] < result.levels[0].loss_start / 5
     for name in ("grid.npz", "mesh.ply", "mesh.obj", "target.ply", "views.png", "levels.json", "levels.csv",
-                 "metrics.json", "settings.json", "checkpoints/level_00.pt", "checkpoints/level_01.pt"):
+                 "metrics.json", "settings.json", "checkpoints/level_01.pt", "checkpoints/level_02.pt"):
         assert (tmp_path / name).is_file(), name
     saved = json.loads((tmp_path / "metrics.json").read_text())
     assert saved["hausdorff_rel"] == pytest.approx(m["hausdorff_rel"])
@@ -73,7 +76,7 @@ def test_resume_and_settings_guard(tmp_path):
     again = reconstruct("sphere", tmp_path, **kwargs)
     assert again.metrics["resumed_from_level"] == 2  # both levels were already done
     np.testing.assert_array_equal(again.grid.values.numpy(), first.grid.values.numpy())
-    (tmp_path / "checkpoints" / "level_01.pt").unlink()  # as if killed during the last level
+    (tmp_path / "checkpoints" / "level_02.pt").unlink()  # as if killed during the last level
     third = reconstruct("sphere", tmp_path, **kwargs)
     assert third.metrics["resumed_from_level"] == 1 and len(third.levels) == 2
     with pytest.raises(ValueError, match="other settings"):
@@ -83,8 +86,8 @@ def test_resume_and_settings_guard(tmp_path):
     assert more.metrics["resumed_from_level"] == 2 and more.metrics["samples"] == 800
     fresh = reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.1), resume=False, **kwargs)
     assert fresh.metrics["resumed_from_level"] is None
-    (tmp_path / "checkpoints" / "level_01.pt").write_bytes(b"truncated")
-    with pytest.raises(ValueError, match="level_01.pt"):
+    (tmp_path / "checkpoints" / "level_02.pt").write_bytes(b"truncated")
+    with pytest.raises(ValueError, match="level_02.pt"):
         reconstruct("sphere", tmp_path, noise=NoiseSettings(image_std=0.1), **kwargs)
 
 
@@ -105,6 +108,71 @@ def test_bad_settings(tmp_path):
         GridSettings(init_radius=2.0)
     with pytest.raises(ValueError, match="image_std"):
         NoiseSettings(image_std=-1.0)
+
+
+def test_bad_settings_are_refused_before_the_folder_is_made(tmp_path):
+    """Issue 40 items 5 and 13: the seed, the pass limits, the light and the target settings are
+    checked when reconstruct starts (or when the settings are made), before anything is written."""
+    out = tmp_path / "never"
+    with pytest.raises(ValueError, match=r"seed must be an integer in \[0, 4294967295\], got -1"):
+        reconstruct("sphere", out, seed=-1)
+    with pytest.raises(ValueError, match="scene.camera_light must be a finite number >= 0, got -2"):
+        reconstruct("sphere", out, scene=dataclasses.replace(default_scene(), camera_light=-2.0))
+    with pytest.raises(ValueError, match="backend must be one of"):
+        reconstruct("sphere", out, backend="bogus")
+    assert not out.exists()
+    for bad in (0, -5, [3, 0], [], 2.5):
+        with pytest.raises(ValueError, match="max_passes must be"):
+            OptimSettings(max_passes=bad)
+    for bad in (0, -1.0, [10, -1]):
+        with pytest.raises(ValueError, match="max_seconds must be"):
+            OptimSettings(max_seconds=bad)
+    assert OptimSettings(max_passes=[3, 2], max_seconds=[None, 5]).for_level("max_seconds", 1) == 5
+    with pytest.raises(ValueError, match="normals must be one of"):
+        TargetSettings(normals="bumpy")
+    with pytest.raises(ValueError, match="mesh_resolution must be an integer >= 16"):
+        TargetSettings(mesh_resolution=8)
+    with pytest.raises(ValueError, match="extent must be a positive"):
+        TargetSettings(extent=-1.0)
+
+
+SMALL = dict(target_settings=TargetSettings(extent=1.0, mesh_resolution=48), optim=OptimSettings(max_passes=1),
+             evaluation=ScoringSettings(samples=500), progress=False)
+
+
+def test_levels_are_numbered_from_one_in_files_logs_and_resume(tmp_path, caplog):
+    """Issue 40 item 17: the log counts levels from 1 ("level 2/2"); so do the checkpoints, levels.json
+    and levels.csv, the resume message and metrics.json's resumed_from_level."""
+    caplog.set_level(logging.INFO, logger="mvr")
+    reconstruct("sphere", tmp_path, schedule=Schedule(resolutions=[8, 12]), **SMALL)
+    assert sorted(p.name for p in (tmp_path / "checkpoints").iterdir()) == ["level_01.pt", "level_02.pt"]
+    assert [r["level"] for r in json.loads((tmp_path / "levels.json").read_text())] == [1, 2]
+    rows = list(csv.DictReader((tmp_path / "levels.csv").open()))
+    assert [r["level"] for r in rows] == ["1", "2"]
+    assert any(m.startswith("level 1/2 8^3") for m in caplog.messages), caplog.messages
+    (tmp_path / "checkpoints" / "level_02.pt").unlink()
+    caplog.clear()
+    again = reconstruct("sphere", tmp_path, schedule=Schedule(resolutions=[8, 12]), **SMALL)
+    resumed = [m for m in caplog.messages if m.startswith("resuming")]
+    assert resumed and resumed[0].startswith("resuming after level 1 of 2 (8^3)"), caplog.messages
+    assert any(m.startswith("level 2/2 12^3") for m in caplog.messages)
+    assert not any(m.startswith("level 1/2") for m in caplog.messages)
+    assert again.metrics["resumed_from_level"] == 1 and [r.level for r in again.levels] == [1, 2]
+
+
+def test_a_resumed_run_writes_the_target_mesh_of_a_fresh_run(tmp_path):
+    """Issue 40 item 17: target.ply is the same file (vertex normals included) whether the run was
+    fresh, resumed after its last level, or shaded with face normals."""
+    fresh = reconstruct("sphere", tmp_path / "a", schedule=Schedule(resolutions=[8]), **SMALL)
+    written = (tmp_path / "a" / "target.ply").read_bytes()
+    header = written[:written.index(b"end_header")].decode()
+    assert "property float nx" in header or "property double nx" in header, header
+    again = reconstruct("sphere", tmp_path / "a", schedule=Schedule(resolutions=[8]), **SMALL)
+    assert fresh.metrics["resumed_from_level"] is None and again.metrics["resumed_from_level"] == 1
+    assert (tmp_path / "a" / "target.ply").read_bytes() == written
+    face = {**SMALL, "target_settings": TargetSettings(extent=1.0, mesh_resolution=48, normals="face")}
+    reconstruct("sphere", tmp_path / "b", schedule=Schedule(resolutions=[8]), **face)
+    assert (tmp_path / "b" / "target.ply").read_bytes() == written
 
 
 def test_command_line(tmp_path):
