@@ -10,8 +10,11 @@ to rank 0 alone). A mistake in the settings or files is one line ``sdfdiff-evalu
 with exit status 2 (``sdfcommon.tooling.commands``)."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from typing import Any, Optional
+import sys
+import warnings
+from typing import Any, Iterator, Optional
 
 import torch
 from hydra.core.hydra_config import HydraConfig
@@ -43,16 +46,32 @@ def _device_of_rank(device: str, ranks: RankInfo) -> str:
     return device
 
 
+@contextlib.contextmanager
+def _warnings_in_one_line() -> Iterator[None]:
+    """Inside: each warning is one line ``<prog>: warning: <message>`` on stderr, as a mistake is one
+    line ``<prog>: error: ...``, not Python's file:line and source line."""
+    prog = HydraConfig.get().help.app_name if HydraConfig.initialized() else "svr.evaluate"
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr, flush=True)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield
+
+
 def run(settings: EvalSettings) -> EvaluationResult:
-    """Evaluates, prints and writes (see the module docstring); returns the result.
+    """Evaluates, prints and writes (see the module docstring); returns the result. Warnings (a
+    checkpoint trained on other categories than the data's, ...) are one line each.
 
     ``distributed`` ("auto", the default): join the process group that torchrun or srun describe
     when they started several processes; each evaluates its share, rank 0 prints and writes.
     """
-    if settings.distributed is False:
-        return _evaluate_checkpoint(settings, RankInfo())
-    with process_group_from_environment(timeout_s=settings.distributed_timeout_s) as ranks:
-        return _evaluate_checkpoint(settings, ranks)
+    with _warnings_in_one_line():
+        if settings.distributed is False:
+            return _evaluate_checkpoint(settings, RankInfo())
+        with process_group_from_environment(timeout_s=settings.distributed_timeout_s) as ranks:
+            return _evaluate_checkpoint(settings, ranks)
 
 
 def _evaluate_checkpoint(settings: EvalSettings, ranks: RankInfo) -> EvaluationResult:

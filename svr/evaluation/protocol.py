@@ -83,6 +83,9 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
     ranks = _distributed_ranks(distributed)
     categories = tuple((str(c), str(n)) for c, n in categories)
     items = EvalViews(objects, views, max_objects_per_category)
+    if len(items) == 0:
+        raise ValueError(f"split {split!r} of {getattr(objects, 'root', None) or dataset or 'the data'} holds no "
+                         f"objects of the categories {', '.join(n for _, n in categories)}: nothing to evaluate")
     with_coarse = _scores_coarse(model, compare_coarse)
     _warn_if_other_categories(model, categories)
     shard = EvalShardSampler(len(items), pad=False, rank=ranks.rank, world_size=ranks.world_size)
@@ -123,9 +126,16 @@ def _scores_coarse(model: LoadedModel, compare_coarse: bool) -> bool:
 
 
 def _warn_if_other_categories(model: LoadedModel, categories: Sequence[tuple[str, str]]) -> None:
-    if model.categories is not None and {c for c, _ in model.categories} != {c for c, _ in categories}:
-        warnings.warn(f"the checkpoint was trained on categories {[n for _, n in model.categories]}, the data has "
-                      f"{[n for _, n in categories]}", UserWarning, stacklevel=3)
+    """Warns when the data holds categories the checkpoint was not trained on (when it records
+    its own): their scores measure generalisation to unseen categories, not the benchmark."""
+    if model.categories is None:
+        return
+    trained = {c for c, _ in model.categories}
+    unseen = [n for c, n in categories if c not in trained]
+    if unseen:
+        warnings.warn(f"the checkpoint was trained on categories {', '.join(n for _, n in model.categories)}; "
+                      f"the data's {', '.join(unseen)} {'is' if len(unseen) == 1 else 'are'} not among them, so "
+                      f"the scores there are of unseen categories", UserWarning, stacklevel=3)
 
 
 class _ImageScores:

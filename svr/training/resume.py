@@ -10,7 +10,10 @@ import os
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence
 
+from hydra import compose
+from hydra.core.global_hydra import GlobalHydra
 from hydra.core.override_parser.overrides_parser import OverridesParser
+from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
 
 from sdfcommon.tooling.commands import config_group_options
@@ -52,6 +55,19 @@ def _known(leaves: dict[str, Any], path: str) -> bool:
     return any(k == path or path.startswith(k + ".") or k.startswith(path + ".") for k in leaves)
 
 
+def _same_component(saved: dict[str, Any], requested: dict[str, Any], path: str) -> bool:
+    """Whether ``path`` lies in the same component in both configs: the nearest node above it that
+    names a ``_target_`` in ``requested`` names the same one in ``saved``, or ``saved`` lacks that
+    node altogether (a component the saved run did not have). A default of another class (the
+    procedural data's ``cache_dir`` for an NMR run) never belongs to the saved run's node."""
+    parts = path.split(".")
+    for i in range(len(parts) - 1, 0, -1):
+        node = ".".join(parts[:i])
+        if f"{node}._target_" in requested:
+            return not _known(saved, node) or saved.get(f"{node}._target_") == requested[f"{node}._target_"]
+    return True
+
+
 def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[str]) -> tuple[DictConfig, list[str]]:
     """The config a resumed run goes on with: the run's saved ``config.yaml``, with the requested
     (freshly composed) config's values where they are allowed to change (``RESUMABLE_KEYS``).
@@ -91,7 +107,7 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
         if old is missing and not requested_here(path, named_only=True):
             # A setting the saved run did not know yet takes its default, also under a global group
             # (experiment=...) that did not name it.
-            if not _known(saved_leaves, path):
+            if not _known(saved_leaves, path) and _same_component(saved_leaves, requested_leaves, path):
                 OmegaConf.update(merged, path, new, merge=False)
             continue
         if not requested_here(path):
@@ -108,23 +124,59 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
     return merged, changes
 
 
+def run_group_choices(run: RunFolder) -> dict[str, str]:
+    """The config-group options a run was started with (``data: nmr``, ``experiment: demo``, ...),
+    from hydra's record of its start (``RunFolder.hydra_record``), hydra's own groups left out; {}
+    without that record (a demo's run folder, a run folder copied without its ``.hydra/``)."""
+    if not run.hydra_record.is_file():
+        return {}
+    choices = OmegaConf.select(OmegaConf.load(run.hydra_record), "hydra.runtime.choices", default=None) or {}
+    return {str(group): str(option) for group, option in choices.items()
+            if option is not None and group != "hydra" and not str(group).startswith("hydra/")}
+
+
+def run_defaults(run: RunFolder, overrides: Sequence[str], config_name: str = "train") -> Optional[DictConfig]:
+    """The config a command line with ``overrides`` composes when it takes the config-group options
+    of the run it resumes (``run_group_choices``; a group the command line names keeps its choice):
+    where the settings the saved run lacks take their defaults from, so that they come from the
+    run's own groups (an NMR run's from ``data=nmr``, never the default ``data=procedural``). None
+    without hydra's record of the run, outside a hydra command, or when the run's options no longer
+    compose (``resume_config`` then keeps other components' defaults out)."""
+    choices = run_group_choices(run)
+    if not choices or not GlobalHydra.instance().is_initialized():
+        return None
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    named = {o.key_or_group for o in parsed}
+    asked = [o.input_line for o in parsed if not o.key_or_group.startswith("hydra")]
+    try:
+        return compose(config_name, overrides=[*(f"{g}={o}" for g, o in choices.items() if g not in named), *asked])
+    except HydraException as err:
+        log.warning("the config groups of %s (%s) do not compose any more (%s); settings it lacks take the "
+                    "command line's defaults", run.root, choices, err)
+        return None
+
+
 def resumed_settings(settings: TrainSettings, run: RunFolder, overrides: Sequence[str]) -> tuple[TrainSettings, dict]:
     """The settings a training command goes on with in ``run`` (hydra's run folder), and the record
     to write as its ``config.yaml``: for a fresh run ``settings``; for a run resumed in its own
-    folder (``ckpt_path`` names it), ``continued_settings``."""
+    folder (``ckpt_path`` names it), ``continued_settings`` with the defaults of the run's own config
+    groups (``run_defaults``)."""
     named = run_named_by(settings.ckpt_path) if settings.ckpt_path is not None else None
     if named is None or named.root != run.root.resolve():
         return settings, settings_record(settings)
-    return continued_settings(settings, named, overrides)
+    return continued_settings(settings, named, overrides, run_defaults(named, overrides))
 
 
-def continued_settings(settings: TrainSettings, run: RunFolder, overrides: Sequence[str]) -> tuple[TrainSettings, dict]:
+def continued_settings(settings: TrainSettings, run: RunFolder, overrides: Sequence[str],
+                       defaults: Optional[DictConfig] = None) -> tuple[TrainSettings, dict]:
     """The settings a run already in ``run`` goes on with: its saved ``config.yaml`` with the
     changes the command line may make (``resume_config``; each logged as a warning), and the record
     to write back (keeping the ``ckpt_path`` the run started from). Settings the saved run did not
-    know yet take the requested values."""
+    know yet take their values from ``defaults`` (the composed config of the run's own groups,
+    ``run_defaults``), else from ``settings``."""
     saved = OmegaConf.load(run.config)
-    merged, changes = resume_config(saved, OmegaConf.create(settings_record(settings)), overrides)
+    requested = defaults if defaults is not None else OmegaConf.create(settings_record(settings))
+    merged, changes = resume_config(saved, requested, overrides)
     for change in changes:
         log.warning("resuming %s with a changed setting: %s", run.root, change)
     record = OmegaConf.to_container(merged, resolve=True)
@@ -185,5 +237,5 @@ OmegaConf.register_new_resolver("train_run_dir", train_run_dir, replace=True)
 OmegaConf.register_new_resolver("train_output_subdir", train_output_subdir, replace=True)
 
 
-__all__ = ["resume_config", "resumed_settings", "continued_settings", "slurm_run_folder", "requeued_run", "train_run_dir",
-           "train_output_subdir", "RESUMABLE_KEYS"]
+__all__ = ["resume_config", "resumed_settings", "continued_settings", "run_group_choices", "run_defaults",
+           "slurm_run_folder", "requeued_run", "train_run_dir", "train_output_subdir", "RESUMABLE_KEYS"]

@@ -14,6 +14,7 @@ from svr.inference.checkpoints import load_checkpoint
 from svr.models.checkpoint_layout import CHECKPOINT_KEY, STAGES
 
 CONFIG_FILE = "config.yaml"
+HYDRA_RECORD = ".hydra/hydra.yaml"  # hydra's record of how a new run was composed (configs/train.yaml's output_subdir)
 CHECKPOINTS = "checkpoints"
 BEST, LAST, FINAL = "best.ckpt", "last.ckpt", "final.ckpt"
 SLURM_CHECKPOINT_PREFIX = "hpc_ckpt_"
@@ -30,13 +31,27 @@ class RunFolder:
         """The run's resolved config (written when the run starts)."""
         return self.root / CONFIG_FILE
 
+    @property
+    def hydra_record(self) -> Path:
+        """hydra's record of the command that started the run (its config groups' options among it)."""
+        return self.root / HYDRA_RECORD
+
     def holds_run(self) -> bool:
         """Whether a training run was started here (its ``config.yaml`` exists)."""
         return self.config.is_file()
 
+    def holds_checkpoint(self) -> bool:
+        """Whether any stage wrote a checkpoint here (a run that failed or stopped before its first
+        holds none: nothing in the folder is worth keeping or resuming)."""
+        return any(f.is_file() for folder in self.stage_dirs() for f in folder.rglob("*.ckpt"))
+
     def stage_dir(self, stage: str) -> Path:
         """Where one stage writes its checkpoints and logs."""
         return self.root / stage
+
+    def stage_dirs(self) -> list[Path]:
+        """The folders of every stage (made or not)."""
+        return [self.stage_dir(stage) for stage in STAGES]
 
     def checkpoints(self, stage: str) -> Path:
         """The folder of a stage's checkpoints."""

@@ -205,8 +205,10 @@ def train(settings: TrainSettings, run_dir: str | Path) -> TrainResult:
     ``run_dir``, whose ``config.yaml`` the command has written.
 
     Resuming (``ckpt_path`` of a scheduled stage) into the checkpoint's own run folder goes on with
-    that run: its best-checkpoint tracking, its metrics file, its place in the training data. On a
-    SIGTERM the stage saves ``last.ckpt`` and ``TrainingStopped`` is raised.
+    that run: its best-checkpoint tracking, its metrics file, its place in the training data. A run
+    folder as ``ckpt_path`` resumes from its latest checkpoint; ``run_dir`` itself holding none (the
+    run stopped before its first) starts from the first step. On a SIGTERM the stage saves
+    ``last.ckpt`` and ``TrainingStopped`` is raised.
 
     Args:
         settings: the training settings (``svr.training.settings.TrainSettings``).
@@ -220,11 +222,15 @@ def train(settings: TrainSettings, run_dir: str | Path) -> TrainResult:
     schedule = list(settings.stage.schedule)
     ckpt_path = settings.ckpt_path
     if ckpt_path is not None and Path(ckpt_path).expanduser().is_dir():
-        found = RunFolder(Path(ckpt_path).expanduser()).latest_checkpoint(schedule)
-        if found is None:
+        named = RunFolder(Path(ckpt_path).expanduser())
+        found = named.latest_checkpoint(schedule)
+        if found is None and named.root.resolve() == run.root.resolve() and not named.holds_checkpoint():
+            log.info("%s holds a run stopped before its first checkpoint: it starts again from its first step",
+                     named.root)
+        elif found is None:
             raise FileNotFoundError(f"ckpt_path={ckpt_path}: the folder holds no <stage>/checkpoints/last.ckpt or "
                                     f"final.ckpt of the stages {schedule}: nothing to resume")
-        ckpt_path = str(found)
+        ckpt_path = str(found) if found is not None else None
     start, resume, resume_step = 0, False, None
     ckpt = None
     if ckpt_path is not None:

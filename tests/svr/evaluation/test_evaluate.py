@@ -31,10 +31,11 @@ from svr.evaluation.protocol import evaluate
 from svr.evaluation.settings import EvalSettings
 from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report
 from svr.inference.prediction import load_model, predict
-from svr.nmr.format import NMR_CATEGORIES
+from svr.nmr.format import NMR_CATEGORIES, nmr_file
 from svr.nmr.metrics import iou_protocol, iou_table
 
 from ...entry_points import expect_usage_error, run_entry
+from ..data.test_data import CATS, write_fake_nmr
 
 ROOT = Path(__file__).resolve().parents[3]
 CONFIGS = str(ROOT / "configs")
@@ -302,6 +303,40 @@ def test_output_dir_is_the_run_folder(tiny_run, tmp_path, monkeypatch, capsys):
                      "progress=false", *tiny_run.data_overrides()], monkeypatch)
     assert list(cwd.iterdir()) == []
     assert (out / "iou.json").is_file() and (out / ".hydra" / "config.yaml").is_file()
+
+
+def _fake_nmr(root: Path, empty_split: str = "") -> list[str]:
+    """A two-category NMR-format folder (airplane, chair; ``empty_split`` with no objects) and the
+    data overrides that evaluate it."""
+    write_fake_nmr(root)
+    for cid in CATS if empty_split else ():
+        np.savez_compressed(nmr_file(root, cid, empty_split, "images"), np.zeros((0, 24, 4, 64, 64), np.uint8))
+        np.savez_compressed(nmr_file(root, cid, empty_split, "voxels"), np.zeros((0, 32, 32, 32), bool))
+    return ["data=nmr", f"data.root={root}", "data.categories=[airplane,chair]", "data.num_workers=0"]
+
+
+def test_an_empty_split_is_one_line_naming_the_split_and_the_folder(tiny_run, tmp_path, monkeypatch, capsys):
+    """Issue 40 item 3: an empty split (a builder's val = 0) is an error, not an empty table."""
+    data = _fake_nmr(tmp_path / "nmr", empty_split="val")
+    out = tmp_path / "out"
+    line = expect_usage_error(main, [f"ckpt_path={tiny_run.checkpoint}", "split=val", f"output_dir={out}",
+                                     "progress=false", *data], monkeypatch, capsys, "sdfdiff-evaluate")
+    assert "split 'val'" in line and str(tmp_path / "nmr") in line, line
+    assert not out.exists()
+
+
+def test_other_categories_than_trained_are_one_warning_line(tiny_run, tmp_path, monkeypatch, capsys):
+    """Issue 40 item 21: a checkpoint trained on chair and mug, evaluated on airplane and chair:
+    one warning line naming both, no Python warning with its source line."""
+    out = tmp_path / "out"
+    run_entry(main, [f"ckpt_path={tiny_run.checkpoint}", f"output_dir={out}", "views=[0]", "baselines=[]",
+                     "progress=false", *_fake_nmr(tmp_path / "nmr")], monkeypatch)
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if "warning" in line.lower()]
+    assert len(lines) == 1 and lines[0].startswith("sdfdiff-evaluate: warning: "), err
+    assert "airplane" in lines[0] and "mug" in lines[0], lines[0]
+    assert "UserWarning" not in err and "warnings.warn" not in err, err
+    assert (out / "iou.json").is_file()
 
 
 WORKERS_SCRIPT = """

@@ -15,14 +15,17 @@ from pathlib import Path
 import pytest
 import pytorch_lightning as pl
 import torch
+from hydra import initialize_config_dir
 from omegaconf import OmegaConf
 
+from sdfcommon.tooling.settings import build_settings, settings_record
 from svr.inference.checkpoints import load_checkpoint
-from svr.training.resume import requeued_run, resume_config, slurm_run_folder, train_output_subdir, train_run_dir
+from svr.training.resume import (requeued_run, resume_config, run_defaults, run_group_choices, slurm_run_folder,
+                                 train_output_subdir, train_run_dir)
 from svr.training.run_folder import RunFolder, run_folder_of
 from svr.training.stages import TrainingStopped
 
-from .test_train import compose_train, state, tiny_overrides, train
+from .test_train import CONFIGS, compose_train, state, tiny_overrides, train
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -155,6 +158,33 @@ def test_resume_config_takes_the_defaults_of_settings_a_saved_run_lacks():
     assert merged.loss.weights.voxel_kind == "distance" and changes == []
     with pytest.raises(ValueError, match="voxel_kind"):  # named on the command line: a change
         resume_config(saved, requested, ["loss.weights.voxel_kind=distance"])
+
+
+def test_resume_config_takes_no_default_of_another_data_group(tmp_path, data_overrides):
+    """Issue 40 item 1: an NMR run resumed by a command line whose default data group is the
+    procedural one goes on with its NMR data node, none of the procedural data's keys in it."""
+    nmr = ["data=nmr", f"data.root={tmp_path}", "data.categories=[airplane,chair]"]
+    saved = OmegaConf.create(settings_record(build_settings(compose_train(tiny_overrides(nmr, 2)))))
+    merged, changes = resume_config(saved, compose_train(tiny_overrides(data_overrides, 2)), [f"ckpt_path={tmp_path}"])
+    assert OmegaConf.to_container(merged.data) == OmegaConf.to_container(saved.data) and changes == []
+    assert build_settings(merged).data["_target_"] == "svr.data.datamodules.NMRDataModule"
+
+
+def test_a_resumed_runs_defaults_come_from_its_own_config_groups(tmp_path):
+    """Issue 40 item 1: the defaults of settings a saved run lacks are composed with the config
+    groups hydra recorded for the run (data=nmr), a group the command line names keeping its own."""
+    run = RunFolder(tmp_path / "run")
+    run.hydra_record.parent.mkdir(parents=True)
+    OmegaConf.save({"hydra": {"runtime": {"choices": {"data": "nmr", "model": "tiny", "experiment": None,
+                                                      "hydra/launcher": "basic"}}}}, run.hydra_record)
+    assert run_group_choices(run) == {"data": "nmr", "model": "tiny"}
+    small = compose_train(["model=small"]).model
+    with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
+        defaults = run_defaults(run, [f"ckpt_path={run.root}", "model=small"])
+        assert run_defaults(RunFolder(tmp_path / "bare"), []) is None  # no record of the run
+    assert defaults.data._target_ == "svr.data.datamodules.NMRDataModule" and "cache_dir" not in defaults.data
+    assert defaults.model == small
+    assert run_defaults(run, []) is None  # outside a hydra command
 
 
 def test_run_folder_and_latest_checkpoint(tmp_path):
