@@ -12,7 +12,7 @@ BoundLike = Union[float, Sequence[float]]
 
 
 def sdf_to_mesh(values, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0, level: float = 0.0,
-                close: bool = True):
+                close: bool = True, off_level: bool = False):
     """The ``level`` isosurface of one SDF grid as a trimesh.Trimesh in world coordinates.
 
     Args:
@@ -21,6 +21,9 @@ def sdf_to_mesh(values, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0, l
         bbox_min, bbox_max: the box (scalars or 3-vectors).
         close: pad the grid with one layer of positive values first, so a shape cut by the box is
             closed there and the mesh is watertight.
+        off_level: move samples within a thousandth of a voxel of the level that far off it
+            (outwards when at it), so no face collapses (meshes for users; the benchmark's
+            voxeliser meshes the grid as it is).
     Returns:
         trimesh.Trimesh with outward normals (faces wound counter-clockwise seen from outside);
         an empty mesh when the grid has no zero crossing.
@@ -35,6 +38,12 @@ def sdf_to_mesh(values, bbox_min: BoundLike = -1.0, bbox_max: BoundLike = 1.0, l
     lo = np.broadcast_to(np.asarray(bbox_min, float), (3,))
     hi = np.broadcast_to(np.asarray(bbox_max, float), (3,))
     spacing = (hi - lo) / (np.array(v.shape) - 1)
+    # A sample at the level puts the vertices of all its edges on one point: the faces between them
+    # have no area, and merged they make the mesh non-manifold (a silhouette carving's max() leaves
+    # such samples). Move those samples off the level by a thousandth of a voxel.
+    if off_level:
+        eps = 1e-3 * float(np.abs(spacing).min())
+        v = np.where(np.abs(v - level) < eps, np.where(v < level, level - eps, level + eps), v)
     offset = lo.copy()
     if close:
         pad = max(float(np.abs(v).max()), 1e-6) + abs(level) + 1.0

@@ -1,11 +1,14 @@
 """Input images for inference, read like the datasets' and checked: RGBA (alpha = the object's
-silhouette), or RGB/grey with a mask file; folders expanded; a silhouette that cannot be an object
-on a background refused (``check_silhouette``).
+silhouette), or RGB/grey with a mask file; folders and glob patterns expanded (``find_images``, which
+also says what it left out); a silhouette that cannot be an object on a background refused
+(``check_silhouette``).
 """
 from __future__ import annotations
 
+import glob
 import os
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -16,6 +19,10 @@ from svr.nmr.format import images_to_float
 
 PathLike = Union[str, os.PathLike]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+# The largest share of the image border a silhouette may cover: more is an inverted mask (see
+# check_silhouette); an object cropped tightly at one or two edges stays well below it.
+MAX_BORDER_COVER = 0.5
+GLOB_CHARACTERS = "*?["
 
 
 def _open_image(path: Path, what: str):
@@ -36,9 +43,10 @@ def _open_image(path: Path, what: str):
 
 def check_silhouette(alpha: np.ndarray, name: str) -> None:
     """Refuses a silhouette that cannot be an object on a background: empty (no pixel opaque: a
-    fully transparent image or a black mask) or covering the image's whole border (an inverted
-    mask: object transparent, background opaque; an object of the benchmark's framing never
-    touches all four edges). Opaque: alpha >= 128 of 255.
+    fully transparent image or a black mask) or covering more than half of the image's border (an
+    inverted mask: object transparent, background opaque, whether or not the object touches an
+    edge; an object of the benchmark's framing lies inside the frame with background all round).
+    Opaque: alpha >= 128 of 255.
 
     Args:
         alpha: (H, W) uint8 alpha channel or mask (255 = object).
@@ -49,11 +57,13 @@ def check_silhouette(alpha: np.ndarray, name: str) -> None:
     if not opaque.any():
         raise ValueError(f"{name}: the silhouette is empty (no opaque pixel: a fully transparent image or a "
                          f"black mask); the object must be opaque (alpha or mask white) on a transparent background")
-    border = np.concatenate([opaque[0], opaque[-1], opaque[:, 0], opaque[:, -1]])
-    if border.all():
-        raise ValueError(f"{name}: the silhouette covers the whole image border, so the mask looks inverted "
-                         f"(object transparent, background opaque); the object must be opaque (alpha or mask "
-                         f"white) and the background transparent (black in a mask)")
+    border = np.concatenate([opaque[0], opaque[-1], opaque[1:-1, 0], opaque[1:-1, -1]])
+    covered = float(border.mean())
+    if covered > MAX_BORDER_COVER:
+        raise ValueError(f"{name}: the silhouette covers {covered:.0%} of the image border (at most "
+                         f"{MAX_BORDER_COVER:.0%} allowed), so the mask looks inverted (object transparent, background "
+                         f"opaque); the object must be opaque (alpha or mask white) with transparent background "
+                         f"(black in a mask) around it; a tight crop needs padding")
 
 
 def _has_alpha(img) -> bool:
@@ -109,31 +119,55 @@ def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int 
     return images_to_float(arr, "composite")
 
 
-def find_images(inputs: Union[PathLike, Sequence[PathLike]], mask_suffix: str = "_mask") -> list[Path]:
-    """Expands image paths and folders (every PNG/JPEG in a folder, sorted, except masks: files whose
-    stem ends with ``mask_suffix``).
+@dataclass(frozen=True)
+class ImageInputs:
+    """The input images a list of paths, folders and patterns expands to.
+
+    Attributes:
+        images: the image files, in the order given (a folder's and a pattern's sorted).
+        skipped: what a folder or a pattern held that is not read: files that are not PNG/JPEG
+            and sub-folders (hidden names and masks are not listed).
+    """
+
+    images: tuple[Path, ...]
+    skipped: tuple[Path, ...] = ()
+
+
+def find_images(inputs: Union[PathLike, Sequence[PathLike]], mask_suffix: str = "_mask") -> ImageInputs:
+    """Expands image paths, folders and glob patterns (``photos/*.png``, for a shell that passed
+    the pattern on): a folder gives every PNG/JPEG in it (not its sub-folders), sorted, a pattern
+    every PNG/JPEG it matches, except masks (files whose stem ends with ``mask_suffix``); their other
+    entries are returned as ``skipped``. A file named itself is read whatever its suffix.
 
     Raises:
-        ValueError when nothing is given or a folder holds no image; FileNotFoundError naming a
-        missing path.
+        ValueError when nothing is given, or a folder or pattern yields no image; FileNotFoundError
+        naming a missing path or a pattern that matches nothing.
     """
     items = [inputs] if isinstance(inputs, (str, os.PathLike)) else list(inputs or [])
     if not items:
         raise ValueError("images must name at least one image file or folder")
-    out: list[Path] = []
+    images: list[Path] = []
+    skipped: list[Path] = []
     for item in items:
         p = Path(item).expanduser()
         if p.is_dir():
-            found = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES
-                           and not (mask_suffix and f.stem.endswith(mask_suffix)))
-            if not found:
-                raise ValueError(f"images: the folder {p} holds no PNG/JPEG image")
-            out.extend(found)
+            entries, where = sorted(p.iterdir()), f"the folder {p}"
         elif p.exists():
-            out.append(p)
+            images.append(p)
+            continue
+        elif any(c in str(p) for c in GLOB_CHARACTERS):
+            entries, where = sorted(Path(m) for m in glob.glob(str(p))), f"the pattern {p}"
+            if not entries:
+                raise FileNotFoundError(f"images: no file matches the pattern {p}")
         else:
             raise FileNotFoundError(f"image not found: {p}")
-    return out
+        readable = [f for f in entries if f.is_file() and f.suffix.lower() in IMAGE_SUFFIXES]
+        found = [f for f in readable if not (mask_suffix and f.stem.endswith(mask_suffix))]
+        if not found:
+            raise ValueError(f"images: no PNG/JPEG image in {where}")
+        images.extend(found)
+        skipped.extend(f for f in entries if f not in readable and not f.name.startswith("."))
+    return ImageInputs(images=tuple(images), skipped=tuple(skipped))
 
 
 def find_mask(image: Path, mask_suffix: str = "_mask") -> Optional[Path]:
@@ -147,4 +181,5 @@ def find_mask(image: Path, mask_suffix: str = "_mask") -> Optional[Path]:
     return None
 
 
-__all__ = ["load_image", "find_images", "find_mask", "check_silhouette", "IMAGE_SUFFIXES"]
+__all__ = ["load_image", "find_images", "ImageInputs", "find_mask", "check_silhouette", "IMAGE_SUFFIXES",
+           "MAX_BORDER_COVER"]

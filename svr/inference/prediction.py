@@ -22,6 +22,7 @@ from sdfcommon.tooling.serialization import scrub_unsafe_advice
 from svr.inference.calibration import Calibration
 from svr.inference.checkpoints import load_network
 from svr.models.network import SVRNet, SVRPrediction
+from svr.nmr.format import NUM_VIEWS
 from svr.nmr.voxels import clip_to_box
 
 PathLike = Union[str, os.PathLike]
@@ -205,7 +206,8 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
 
 def check_input_views(views, count: int, required: bool, name: str = "views") -> Optional[torch.Tensor]:
     """(count,) float view indices from ``views`` (one per image, or a single one for all), or None
-    when not given; raises ValueError naming ``name`` when they are required and missing, or malformed."""
+    when not given; raises ValueError naming ``name`` when they are required and missing, or malformed
+    (not one per image, or outside [0, NUM_VIEWS): views 0..23, fractional ones between them)."""
     if views is None:
         if required:
             raise ValueError(f"{name}: this network reads image features where each sample projects into the input "
@@ -216,9 +218,17 @@ def check_input_views(views, count: int, required: bool, name: str = "views") ->
         v = v.expand(count)
     if v.numel() != count:
         raise ValueError(f"{name}: expected one NMR view index per image ({count}) or one for all, got {v.numel()}")
-    if not bool(torch.isfinite(v).all()):
-        raise ValueError(f"{name}: view indices must be finite numbers")
+    outside = v[~(torch.isfinite(v) & (v >= 0) & (v < NUM_VIEWS))]
+    if outside.numel():
+        raise ValueError(f"{name} must be an NMR view index in [0, {NUM_VIEWS}) (0..{NUM_VIEWS - 1}, fractional "
+                         f"allowed), got {_number(outside[0])}")
     return v
+
+
+def _number(x: torch.Tensor) -> str:
+    """A view index as the user wrote it (24, not 24.0)."""
+    value = float(x)
+    return str(int(value)) if value.is_integer() else repr(value)
 
 
 def predict(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,

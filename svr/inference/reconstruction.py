@@ -1,9 +1,11 @@
 """Reconstructions of images by a loaded model: ``reconstruct_images`` predicts SDF grids
-(``svr.inference.prediction``), extracts watertight meshes by marching cubes (closed at the box)
-and renders previews from NMR views (``svr.nmr.views``); ``save_reconstruction`` writes one
-(``<name>_sdf.npz``, ``<name>.ply``, ``<name>.obj``, ``<name>_views.png``, each atomically) and
-``infer_files`` does both for image files (``svr.inference.images``) into a folder. The functions take
-a ``LoadedModel``; turning a checkpoint path into one is the command's (``svr.infer``)."""
+(``svr.inference.prediction``), extracts meshes by marching cubes (closed at the box, cleaned:
+``clean_mesh``; each checked for watertightness and its problem said) and renders previews from NMR
+views (``svr.nmr.views``); ``save_reconstruction`` writes one (``<name>_sdf.npz``, ``<name>.ply``,
+``<name>.obj``, ``<name>_views.png``, each atomically) and ``infer_files`` does both for image files
+(``svr.inference.images``) into a folder, image by image: one that cannot be read or gives no
+surface is a failed item of its ``InferenceReport``, and the others go on. The functions take a
+``LoadedModel``; turning a checkpoint path into one is the command's (``svr.infer``)."""
 from __future__ import annotations
 
 import os
@@ -36,10 +38,13 @@ class Reconstruction:
     Attributes:
         values: (N, N, N) float32 CPU SDF (world units, renderer.SDFGrid layout).
         bbox_min, bbox_max: the grid's box (the first and last samples, world units, per axis).
-        mesh: trimesh.Trimesh of the zero level set (closed at the box); empty if there is none.
+        mesh: trimesh.Trimesh of the zero level set (closed at the box, ``clean_mesh``); empty if
+            there is none.
         watertight: whether trimesh finds the mesh watertight (False for an empty mesh).
         renders: (K, S, S, 3) float32 CPU shaded renders from the NMR views ``views``.
         views: the NMR view indices of ``renders``.
+        problem: what is wrong with the mesh ("no surface ...", "not watertight ..."), None when
+            it is a non-empty watertight mesh (``mesh_problem``).
     """
 
     values: torch.Tensor
@@ -49,33 +54,72 @@ class Reconstruction:
     watertight: bool
     renders: Optional[torch.Tensor]
     views: tuple[int, ...]
+    problem: Optional[str] = None
+
+
+def clean_mesh(mesh):
+    """A copy of a trimesh.Trimesh with duplicate vertices merged and the faces that repeat a vertex
+    (no area) or another face dropped, then unused vertices removed: what marching cubes leaves
+    where the field is zero at a sample (two of its vertices coincide)."""
+    out = mesh.copy()
+    out.merge_vertices()
+    f = out.faces
+    out.update_faces((f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2]))
+    out.update_faces(out.unique_faces())
+    out.remove_unreferenced_vertices()
+    return out
+
+
+def mesh_problem(mesh) -> Optional[str]:
+    """What keeps a mesh from being a closed surface, in words, or None when it is non-empty and
+    watertight (trimesh: every edge shared by exactly two faces)."""
+    if len(mesh.faces) == 0:
+        return "no surface: the predicted SDF has no zero crossing (positive everywhere), so there is no mesh"
+    if mesh.is_watertight:
+        return None
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    return (f"the mesh is not watertight: {int((counts == 1).sum())} open and {int((counts > 2).sum())} "
+            f"non-manifold edges of {len(counts)}")
 
 
 def reconstruct_images(model: LoadedModel, images: torch.Tensor, views: Sequence[int] = PREVIEW_VIEWS,
                 render_size: int = 128, batch_size: int = 16, backend: str = "auto",
                 require_watertight: bool = False, names: Optional[Sequence[str]] = None,
                 input_views=None) -> list[Reconstruction]:
-    """Predicts SDF grids, extracts watertight meshes and renders previews for B images.
+    """Predicts SDF grids, extracts meshes (``clean_mesh``) and renders previews for B images; warns
+    about a mesh that is empty or not watertight (``Reconstruction.problem``).
 
     Args:
         model: the network and its stage (``svr.inference.prediction.load_model``).
         images: (B, 4, 64, 64) float RGBA in [0, 1].
         views: NMR views of the preview renders (empty: no renders).
         render_size: side of the preview renders.
-        require_watertight: raise instead of warning when a mesh is not watertight.
+        require_watertight: raise (ValueError naming the image) instead of warning when a mesh is
+            not watertight.
         names: per image, how warnings name it (default "image <b>").
         input_views: the NMR view index each image was taken from (one per image or one for all);
             needed by a network with a pixel-aligned head (``predict_sdf``'s ``views``).
     Returns:
         one Reconstruction per image.
     """
-    m = check_model(model)
+    recs = _reconstruct(check_model(model), images, views, render_size, batch_size, backend, input_views)
+    names = list(names) if names is not None else [f"image {b}" for b in range(len(recs))]
+    if len(names) != len(recs):
+        raise ValueError(f"names must have one entry per image ({len(recs)}), got {len(names)}")
+    for name, rec in zip(names, recs):
+        if rec.problem is not None:
+            if require_watertight and len(rec.mesh.faces):
+                raise ValueError(f"{name}: {rec.problem}")
+            warnings.warn(f"{name}: {rec.problem}", RuntimeWarning, stacklevel=2)
+    return recs
+
+
+def _reconstruct(m: LoadedModel, images: torch.Tensor, views: Sequence[int], render_size: int, batch_size: int,
+                 backend: str, input_views) -> list[Reconstruction]:
+    """``reconstruct_images`` without its verdicts: each Reconstruction says its mesh's problem."""
     views = check_view_ids(views)
     check_int(render_size, "render_size", minimum=1)
     grid = predict(m, images, batch_size, views=input_views)
-    names = list(names) if names is not None else [f"image {b}" for b in range(grid.batch_size)]
-    if len(names) != grid.batch_size:
-        raise ValueError(f"names must have one entry per image ({grid.batch_size}), got {len(names)}")
     renders = None
     if views:
         renders = torch.cat([render_previews(renderer.SDFGrid(v, -m.half_side, m.half_side), views, render_size, backend)
@@ -85,20 +129,12 @@ def reconstruct_images(model: LoadedModel, images: torch.Tensor, views: Sequence
     hi = tuple(float(c) for c in grid.bbox_max.cpu())
     out = []
     for b, v in enumerate(values):
-        mesh = sdf_to_mesh(v, lo, hi, close=True)
-        empty = len(mesh.faces) == 0
-        tight = bool(not empty and mesh.is_watertight)
-        if empty:
-            warnings.warn(f"{names[b]}: the predicted SDF has no zero crossing: no surface, empty mesh",
-                          RuntimeWarning, stacklevel=2)
-        elif not tight:
-            msg = f"{names[b]}: the extracted mesh is not watertight (trimesh.is_watertight is False)"
-            if require_watertight:
-                raise ValueError(msg)
-            warnings.warn(msg, RuntimeWarning, stacklevel=2)
-        out.append(Reconstruction(values=v, bbox_min=lo, bbox_max=hi, mesh=mesh, watertight=tight,
+        mesh = clean_mesh(sdf_to_mesh(v, lo, hi, close=True, off_level=True))
+        problem = mesh_problem(mesh)
+        out.append(Reconstruction(values=v, bbox_min=lo, bbox_max=hi, mesh=mesh,
+                                  watertight=bool(len(mesh.faces) and mesh.is_watertight),
                                   renders=renders[b] if renders is not None else None,
-                                  views=tuple(int(x) for x in views)))
+                                  views=tuple(int(x) for x in views), problem=problem))
     return out
 
 
@@ -158,9 +194,10 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
 
 
 def check_formats(formats: Sequence[str]) -> list[str]:
-    """Raises ValueError naming ``formats`` unless it is a list of ``OUTPUT_FORMATS``."""
-    if isinstance(formats, str) or not isinstance(formats, Sequence) or any(f not in OUTPUT_FORMATS for f in formats):
-        raise ValueError(f"formats must be a list among {list(OUTPUT_FORMATS)}, got {formats!r}")
+    """Raises ValueError naming ``formats`` unless it is a non-empty list of ``OUTPUT_FORMATS``."""
+    if (isinstance(formats, str) or not isinstance(formats, Sequence) or not formats
+            or any(f not in OUTPUT_FORMATS for f in formats)):
+        raise ValueError(f"formats must be a non-empty list among {list(OUTPUT_FORMATS)}, got {formats!r}")
     return list(formats)
 
 
@@ -174,27 +211,74 @@ def _unique_names(paths: Sequence[Path]) -> list[str]:
     return names
 
 
+@dataclass(frozen=True)
+class ImageResult:
+    """What ``infer_files`` made of one input image.
+
+    Attributes:
+        image: the input file.
+        files: {format: path} of the files written; empty when it failed.
+        error: why it failed (None: done): the image or its mask could not be read or was refused,
+            the prediction has no surface, or (``require_watertight``) its mesh is not watertight.
+        problem: a problem of a written mesh that did not fail it (not watertight), else None.
+    """
+
+    image: Path
+    files: Mapping[str, Path]
+    error: Optional[str] = None
+    problem: Optional[str] = None
+
+    @property
+    def done(self) -> bool:
+        return self.error is None
+
+
+@dataclass(frozen=True)
+class InferenceReport:
+    """``infer_files``'s result.
+
+    Attributes:
+        images: one ImageResult per input image, in the order of the expanded inputs.
+        skipped: what the given folders and patterns held that was not read (``find_images``).
+    """
+
+    images: tuple[ImageResult, ...]
+    skipped: tuple[Path, ...] = ()
+
+    @property
+    def done(self) -> tuple[ImageResult, ...]:
+        return tuple(r for r in self.images if r.done)
+
+    @property
+    def failed(self) -> tuple[ImageResult, ...]:
+        return tuple(r for r in self.images if not r.done)
+
+
 def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]], output_dir: PathLike,
                 masks: Optional[Sequence[Optional[PathLike]]] = None, mask_suffix: str = "_mask",
                 views: Sequence[int] = PREVIEW_VIEWS, render_size: int = 128, batch_size: int = 16,
                 formats: Sequence[str] = OUTPUT_FORMATS, require_watertight: bool = False,
                 backend: str = "auto", progress: bool = False, input_view: Optional[float] = None
-                ) -> list[dict[str, Path]]:
-    """Reads images (files or folders), reconstructs them and writes the results into ``output_dir``.
+                ) -> InferenceReport:
+    """Reads images (files, folders or glob patterns), reconstructs them and writes the results into
+    ``output_dir``, image by image: an image that cannot be read, is refused (``load_image``) or
+    gives no surface (or, with ``require_watertight``, a mesh that is not watertight) is a failed
+    item of the report, with nothing written for it, and the others go on.
 
     Args:
         model: the network and its stage (``svr.inference.prediction.load_model``).
-        images: an image file, a folder (every PNG/JPEG in it but masks) or a list of them.
+        images: an image file, a folder (every PNG/JPEG in it but masks), a glob pattern or a list
+            of them (``svr.inference.images.find_images``).
         masks: one mask path (or None) per expanded image; default: ``<stem><mask_suffix>.*`` beside
             each image when it exists.
-        input_view: the NMR view index (0..23, azimuth -15 * view degrees at 30 degrees elevation) of
-            every image's camera; needed by a network with a pixel-aligned head.
+        input_view: the NMR view index (in [0, 24): azimuth -15 * view degrees at 30 degrees
+            elevation) of every image's camera; needed by a network with a pixel-aligned head.
         Others: see ``reconstruct_images`` and ``save_reconstruction``.
     Returns:
-        per image, {format: path} of the files written (in the order of the expanded inputs).
+        InferenceReport: per image, the files written or why it failed, and what was skipped.
     Raises:
-        ValueError naming ``output_dir`` when it cannot be written (checked before any work), and
-        the file of an unreadable image or mask.
+        ValueError naming the setting (checked before any image is read) or ``output_dir`` when it
+        cannot be written; FileNotFoundError naming a missing input path.
     """
     # Every setting is checked before the first image is read (a bad one must not cost a model run).
     m = check_model(model)
@@ -204,28 +288,38 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
     check_input_views(input_view, 1, m.net.needs_views, "input_view")
     check_formats(formats)
     folder = ensure_output_dir(output_dir, "output_dir")
-    paths = find_images(images, mask_suffix)
+    found = find_images(images, mask_suffix)
+    paths = found.images
     if masks is not None and len(masks) != len(paths):
         raise ValueError(f"masks must have one entry per image ({len(paths)} images), got {len(masks)}")
-    tensors = []
-    for i, p in enumerate(paths):
-        mask = masks[i] if masks is not None else find_mask(p, mask_suffix)
-        tensors.append(load_image(p, mask, m.image_size))
     names = _unique_names(paths)
     meta = {"checkpoint": str(m.checkpoint) if m.checkpoint else "", "stage": m.stage, "output": m.output_name}
-    results = []
+    results: dict[int, ImageResult] = {}
+    loaded: list[tuple[int, torch.Tensor]] = []
+    for i, p in enumerate(paths):
+        try:
+            loaded.append((i, load_image(p, masks[i] if masks is not None else find_mask(p, mask_suffix),
+                                         m.image_size)))
+        except (OSError, ValueError) as err:  # the message names the file
+            results[i] = ImageResult(p, {}, error=str(err))
     with tqdm(total=len(paths), desc="infer", unit="img", disable=not progress) as bar:
-        for start in range(0, len(paths), batch_size):
-            batch = torch.stack(tensors[start:start + batch_size])
-            recs = reconstruct_images(m, batch, views, render_size, batch_size, backend, require_watertight,
-                               names=[str(p) for p in paths[start:start + batch_size]], input_views=input_view)
-            for k, rec in enumerate(recs):
-                i = start + k
-                results.append(save_reconstruction(rec, folder, names[i], tensors[i], formats,
-                                                   {**meta, "image": str(paths[i])}))
+        bar.update(len(results))
+        for start in range(0, len(loaded), batch_size):
+            chunk = loaded[start:start + batch_size]
+            recs = _reconstruct(m, torch.stack([t for _, t in chunk]), views, render_size, batch_size, backend,
+                                input_view)
+            for (i, tensor), rec in zip(chunk, recs):
+                if len(rec.mesh.faces) == 0:
+                    results[i] = ImageResult(paths[i], {}, error=rec.problem)
+                    continue
+                if rec.problem is not None and require_watertight:
+                    results[i] = ImageResult(paths[i], {}, error=f"{rec.problem} (require_watertight=true)")
+                    continue
+                files = save_reconstruction(rec, folder, names[i], tensor, formats, {**meta, "image": str(paths[i])})
+                results[i] = ImageResult(paths[i], files, problem=rec.problem)
             bar.update(len(recs))
-    return results
+    return InferenceReport(images=tuple(results[i] for i in range(len(paths))), skipped=found.skipped)
 
 
-__all__ = ["Reconstruction", "reconstruct_images", "preview_picture", "save_reconstruction", "infer_files", "check_formats",
-           "OUTPUT_FORMATS"]
+__all__ = ["Reconstruction", "reconstruct_images", "clean_mesh", "mesh_problem", "preview_picture", "save_reconstruction",
+           "infer_files", "ImageResult", "InferenceReport", "check_formats", "OUTPUT_FORMATS"]

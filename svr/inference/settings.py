@@ -8,9 +8,15 @@ from dataclasses import dataclass
 from typing import Optional, Union
 
 from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.hardware import check_backend
 from sdfcommon.tooling.settings import PathSettings
+from svr.inference.prediction import check_input_views
 from svr.inference.reconstruction import check_formats
 from svr.nmr.format import check_view_ids
+
+# The previews of a batch are rendered at once (batch_size x views x render_size^2 rays): a bound
+# on their memory, and 8x the network's 64^2 input side.
+MAX_RENDER_SIZE = 512
 
 
 @dataclass(frozen=True)
@@ -25,11 +31,15 @@ class InferSettings:
         output_dir: where the files go; None: hydra's run folder (``<paths.output_dir>/infer/<time>``).
         device: "auto", "cpu", "cuda" or "cuda:N".
         batch_size: images per forward pass. views: NMR views of the preview renders (may be empty).
-        render_size: side of the preview renders. formats: among npz, ply, obj, png.
+        render_size: side of the preview renders (at most ``MAX_RENDER_SIZE``). formats: among npz,
+            ply, obj, png.
         require_watertight: a mesh that is not watertight is an error rather than a warning.
-        backend: the renderer's march. progress: a progress bar. paths: as ``PathSettings``.
-        input_view: the NMR view index the images were taken from (networks with a pixel-aligned
-            head need it; None for others).
+        backend: the renderer's march (one that can run here). progress: a progress bar.
+        paths: as ``PathSettings``.
+        input_view: the NMR view index the images were taken from, in [0, 24) (networks with a
+            pixel-aligned head need it; None for others).
+        overwrite: write into an output folder that already holds files (same names are replaced);
+            False: such a folder is refused.
     """
 
     ckpt_path: str
@@ -46,13 +56,19 @@ class InferSettings:
     backend: str
     progress: bool
     input_view: Optional[float]
+    overwrite: bool
     paths: PathSettings
 
     def __post_init__(self) -> None:
         check_int(self.batch_size, "batch_size", 1)
         check_view_ids(self.views, "views")
         check_int(self.render_size, "render_size", 1)
+        if self.render_size > MAX_RENDER_SIZE:
+            raise ValueError(f"render_size must be at most {MAX_RENDER_SIZE} (the previews of a batch are "
+                             f"rendered at once), got {self.render_size!r}")
         check_formats(self.formats)
+        check_backend(self.backend)
+        check_input_views(self.input_view, 1, False, "input_view")
 
 
-__all__ = ["InferSettings"]
+__all__ = ["InferSettings", "MAX_RENDER_SIZE"]

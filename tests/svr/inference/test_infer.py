@@ -123,8 +123,8 @@ def test_rgb_plus_mask_equals_rgba_and_other_sizes_are_resized(tiny_run, tmp_pat
     out = tmp_path / "out"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        files = infer_files(load_model(tiny_run.checkpoint, "cpu"), tmp_path, out, views=[], formats=["npz"])
-    assert len(files) == 3 and not (out / "b_mask_sdf.npz").exists()
+        report = infer_files(load_model(tiny_run.checkpoint, "cpu"), tmp_path, out, views=[], formats=["npz"])
+    assert len(report.done) == 3 and not report.failed and not (out / "b_mask_sdf.npz").exists()
 
 
 def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch, capsys):
@@ -324,7 +324,7 @@ def test_settings_are_built_from_infer_yaml():
 
 @pytest.mark.parametrize("override, message", [("+nonsense=1", "nonsense: unknown setting"),
                                                ("render_size=big", "render_size must be an integer, got 'big'"),
-                                               ("formats=[stl]", "formats must be a list among")])
+                                               ("formats=[stl]", "formats must be a non-empty list among")])
 def test_a_bad_key_or_value_is_one_line_and_makes_no_folder(override, message, tmp_path, monkeypatch, capsys):
     """Checked when the settings are built: before the run folder, the model or the images."""
     lines = refused_before_any_folder(main, ["ckpt_path=missing.ckpt", "images=missing.png", override],
