@@ -22,7 +22,7 @@ from svr.data.procedural.generator import (ProceduralSettings, default_workers, 
                                            procedural_dataset_dir)
 from svr.data.samplers import EvalShardSampler, ObjectViewSampler, ResumableLoader
 from svr.data.types import ShadingModel, collate_batch
-from svr.nmr.format import NMR_CATEGORY_IDS, NUM_VIEWS, SPLITS, PathLike, prepare_nmr, resolve_categories
+from svr.nmr.format import NUM_VIEWS, SPLITS, PathLike, is_nmr_shapenet, prepare_nmr, resolve_categories
 
 
 class SVRDataModule(pl.LightningDataModule):
@@ -103,7 +103,7 @@ class SVRDataModule(pl.LightningDataModule):
 
     def describe(self) -> str:
         """A short description of the data: its kind and folder."""
-        nmr = self.categories and all(c in NMR_CATEGORY_IDS for c, _ in self.categories)
+        nmr = is_nmr_shapenet(self.root, self._category_keys)
         return f"{'NMR ShapeNet' if nmr else 'NMR-format data'} ({self.root})"
 
     # ------------------------------------------------------------------ lightning hooks

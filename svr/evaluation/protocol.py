@@ -24,14 +24,13 @@ from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.processes import process_pool
 from svr.data.datamodules import SVRDataModule
 from svr.data.datasets import EvalViews
-from svr.data.procedural.generator import is_procedural_dataset
 from svr.data.samplers import EvalShardSampler
 from svr.data.types import SVRBatch, collate_batch
 from svr.distributed import RankInfo, gather_uneven
 from svr.evaluation.baselines import check_baselines, score_baselines
 from svr.evaluation.tables import EvaluationResult
 from svr.inference.prediction import LoadedModel, check_model, predict_sdf
-from svr.nmr.format import NMR_CATEGORY_IDS, NUM_VIEWS, SPLITS
+from svr.nmr.format import NUM_VIEWS, SPLITS, is_nmr_shapenet
 from svr.nmr.metrics import voxel_iou, voxels_protocol
 
 
@@ -70,8 +69,8 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
             results are gathered in rank order, which is the single-process order. A collective:
             every rank must call it with the same arguments; every rank returns the whole result.
         nmr_shapenet: whether the data is real NMR ShapeNet (the paper's reference rows apply);
-            None: when every category id is an NMR ShapeNet id and ``objects`` is not a generated
-            procedural dataset.
+            None: as ``svr.nmr.format.is_nmr_shapenet`` tells from the folder (generated or built
+            data is not).
     Raises:
         TypeError naming ``model`` unless it is a LoadedModel; ValueError naming ``distributed``
         when it is True without an initialised process group, or the setting out of range.
@@ -98,7 +97,8 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
     gather = functools.partial(_gathered, world_size=ranks.world_size)
     result = EvaluationResult(
         split=split, dataset=dataset, categories=categories,
-        is_nmr_shapenet=_is_nmr_shapenet(objects, categories) if nmr_shapenet is None else bool(nmr_shapenet),
+        is_nmr_shapenet=(is_nmr_shapenet(objects.root, [c for c, _ in categories]) if nmr_shapenet is None
+                         else bool(nmr_shapenet)),
         checkpoint=str(model.checkpoint) if model.checkpoint is not None else None, stage=model.stage,
         output=model.output_name,
         category=gather(scores.category, np.int64), object_index=gather(scores.object_index, np.int64),
@@ -197,12 +197,6 @@ def _gathered(parts: list, dtype: Any, shape: tuple = (), world_size: int = 1) -
     its own)."""
     local = np.concatenate(parts).astype(dtype) if parts else np.zeros((0, *shape), dtype)
     return gather_uneven(torch.from_numpy(local)).numpy() if world_size > 1 else local
-
-
-def _is_nmr_shapenet(objects, categories: Sequence[tuple[str, str]]) -> bool:
-    """Real NMR ShapeNet: the 13 benchmark ids, and not our procedural data (which uses the same ids)."""
-    return bool(categories) and all(c in NMR_CATEGORY_IDS for c, _ in categories) and not (
-        hasattr(objects, "root") and is_procedural_dataset(objects.root))
 
 
 def _distributed_ranks(distributed: bool) -> RankInfo:

@@ -254,6 +254,14 @@ def read_metadata(root: PathLike) -> dict:
         raise ValueError(f"{path} is not valid JSON: {err}") from None
 
 
+def is_nmr_shapenet(root: PathLike, category_ids: Sequence[str]) -> bool:
+    """Whether a folder is real NMR ShapeNet, whose rows the paper's table holds: only the 13
+    benchmark category ids, and no ``metadata.json`` (the procedural generator and the mesh builder
+    each write one, with the same ids where the categories match)."""
+    return (bool(category_ids) and all(c in NMR_CATEGORY_IDS for c in category_ids)
+            and not (Path(root) / "metadata.json").exists())
+
+
 def resolve_categories(root: PathLike, categories: Optional[Sequence[str]] = None) -> list[tuple[str, str]]:
     """(id, name) pairs for a category selection.
 
@@ -330,5 +338,5 @@ def check_view_ids(views: Optional[Sequence[int]], name: str = "views", allow_em
 __all__ = [
     "check_view_ids",
     "NMR_CATEGORIES", "NMR_CATEGORY_IDS", "SPLITS", "NUM_VIEWS", "IMAGE_SHAPE", "VOXEL_SHAPE", "nmr_file", "read_npz_header",
-    "check_npz", "read_npz", "open_prepared", "prepare_nmr", "read_metadata", "resolve_categories", "images_to_float",
+    "check_npz", "read_npz", "open_prepared", "prepare_nmr", "read_metadata", "is_nmr_shapenet", "resolve_categories", "images_to_float",
 ]

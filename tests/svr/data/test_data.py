@@ -2,6 +2,7 @@
 into memory-mapped arrays, clear errors on bad files, the DataModules and their hydra configs."""
 from __future__ import annotations
 
+import json
 import os
 import pickle
 from pathlib import Path
@@ -233,6 +234,16 @@ def test_bad_arguments_are_refused(fake_nmr, tmp_path):
         EvalViews(NMRDataset(root, "val", categories=list(CATS)), views=[24])
     with pytest.raises(ValueError, match="views must not repeat"):
         EvalViews(NMRDataset(root, "val", categories=list(CATS)), views=[3, 3])
+
+
+
+def test_built_data_is_not_described_as_nmr_shapenet(fake_nmr):
+    """A folder of the benchmark's ids is NMR ShapeNet until a metadata.json says a tool made it
+    (the mesh builder writes one): evaluation then labels it NMR-format data, without the paper's rows."""
+    root, _ = fake_nmr
+    assert NMRDataModule(root).describe() == f"NMR ShapeNet ({root})"
+    (root / "metadata.json").write_text(json.dumps({"builder_version": 2, "categories": []}))
+    assert NMRDataModule(root).describe() == f"NMR-format data ({root})"
 
 
 # ------------------------------------------------------------------------------------ sampling
