@@ -252,10 +252,12 @@ def test_cuda_stage2_bodies_in_the_cuda_simulator():
     assert res["grad"] < 1e-12 * res["grad_scale"] + 1e-15, res
 
 
-@pytest.mark.parametrize("dtype", ["float32", pytest.param("float64", marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
 def test_cuda_stage2_kernels_compile_to_ptx(dtype, monkeypatch):
-    """Compiles both stage-2 CUDA kernels for sm_80 without a GPU (needs libNVVM; about a minute
-    per dtype on 2 cores, so float64 runs with the slow tests)."""
+    """Compiles both stage-2 CUDA kernels for sm_80 without a GPU (needs libNVVM; 25 s to a minute
+    per dtype on 2 cores, so `slow`: the default suite runs the same kernel bodies in numba's CUDA
+    simulator, test_cuda_stage2_bodies_in_the_cuda_simulator)."""
     from numba import types
 
     cuda = device_less_cuda(monkeypatch)

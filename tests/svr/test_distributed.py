@@ -236,7 +236,8 @@ def test_slurm_launcher_config_composes():
 @pytest.fixture(scope="module")
 def ddp_run(tmp_path_factory, tiny_procedural) -> dict[str, Any]:
     """``python train.py trainer=ddp_cpu``: 2 processes (gloo), 2 coarse steps over 2 epochs, one
-    validation at the end; rank 1's first batch is NaN."""
+    validation at the end; rank 1's first batch is NaN. About 45 s on 2 cores, so its tests are
+    `slow`; the samplers' sharding and the gathers stay in the default suite."""
     cache, _, settings = tiny_procedural
     root = tmp_path_factory.mktemp("ddp")
     run, probe = root / "run", root / "probe"
@@ -259,6 +260,7 @@ def ddp_run(tmp_path_factory, tiny_procedural) -> dict[str, Any]:
             "output": proc.stdout + proc.stderr}
 
 
+@pytest.mark.slow
 def test_ddp_run_finishes_with_one_set_of_outputs(ddp_run):
     run = ddp_run["run"]
     for r, probe in enumerate(ddp_run["ranks"]):
@@ -273,6 +275,7 @@ def test_ddp_run_finishes_with_one_set_of_outputs(ddp_run):
     assert sorted(p.name for p in ckpts.iterdir()) == ["best.ckpt", "final.ckpt", "last.ckpt"]
 
 
+@pytest.mark.slow
 def test_ddp_ranks_see_different_parts_of_one_stream(ddp_run):
     """Each rank trains on its own slice of the single-process stream (seeded by seed + epoch): every
     key once across ranks, none twice. Were Lightning to wrap the samplers, the slices would differ."""
@@ -295,6 +298,7 @@ def test_ddp_ranks_see_different_parts_of_one_stream(ddp_run):
     assert all(a != b for a, b in zip(seen[0], seen[1]))  # different data at every step
 
 
+@pytest.mark.slow
 def test_ddp_gradients_are_synchronised(ddp_run):
     """The weights are equal on both ranks after the steps, also after a step that was not finite on
     rank 1 only: both ranks skipped it."""
@@ -308,6 +312,7 @@ def test_ddp_gradients_are_synchronised(ddp_run):
     assert any(k.startswith("encoder.") for k in moved) and any(k.startswith("decoder.") for k in moved)
 
 
+@pytest.mark.slow
 def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
     from hydra import compose, initialize_config_dir
     from hydra.utils import instantiate
@@ -343,6 +348,7 @@ def test_ddp_validation_counts_each_image_once_and_matches_one_process(ddp_run):
     assert v0["iou"] == pytest.approx(single["val/iou"], abs=1e-6)
 
 
+@pytest.mark.slow
 def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
     """torchrun, 2 processes, 9 images (5 + 4): the same files as a single-process evaluation."""
     from svr.evaluation.baselines import BASELINES
@@ -375,6 +381,7 @@ def test_distributed_evaluation_matches_one_process(ddp_run, tmp_path):
     assert ddp_json == single_json
 
 
+@pytest.mark.slow
 def test_evaluate_distributed_needs_a_process_group(ddp_run):
     from svr.evaluation.protocol import evaluate
     from svr.inference.prediction import load_model
