@@ -1,6 +1,8 @@
-"""Shared test set-up: skip `cuda` tests where no GPU is usable; quiet the fallback warning."""
+"""Shared test set-up: skip `cuda` tests where no GPU is usable; quiet the fallback warning; Ctrl+C
+for the tests that send it (``ctrl_c_raises``)."""
 from __future__ import annotations
 
+import signal
 import warnings
 
 import pytest
@@ -45,3 +47,13 @@ def umask_022():
         yield
     finally:
         os.umask(previous)
+
+
+@pytest.fixture
+def ctrl_c_raises():
+    """Python's own SIGINT handler (Ctrl+C raises KeyboardInterrupt) for one test, the previous
+    one restored after it: a shell starts a background job with SIGINT ignored, and Python then
+    installs none, so a suite run from a background job would otherwise never see the interrupt."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)

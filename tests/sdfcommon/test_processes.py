@@ -32,7 +32,7 @@ def _sleep(seconds: float) -> float:
     return seconds
 
 
-def test_ctrl_c_ends_the_workers_instead_of_waiting_for_them():
+def test_ctrl_c_ends_the_workers_instead_of_waiting_for_them(ctrl_c_raises):
     """Issue 40 item 16: before, the workers of a map stopped by Ctrl+C went on with the items in
     flight (here 30 s), and the process waited for them at exit."""
     main = threading.main_thread().ident

@@ -180,7 +180,8 @@ def test_degenerate_meshes_are_skipped_rows(tmp_path):
 
 
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
-def test_a_stopped_build_says_so_in_one_line_and_continues(signum, solids, tmp_path, monkeypatch, capsys):
+def test_a_stopped_build_says_so_in_one_line_and_continues(signum, solids, tmp_path, monkeypatch, capsys,
+                                                          ctrl_c_raises):
     """Issue 40 item 16: before, Ctrl+C printed a KeyboardInterrupt traceback, SIGTERM no word of how
     to continue, and build.log stayed empty. Here the signal arrives while the second mesh builds."""
     out = tmp_path / "nmr"
