@@ -22,7 +22,7 @@ from svr.data.procedural.generator import (ProceduralSettings, default_workers, 
                                            procedural_dataset_dir)
 from svr.data.samplers import EvalShardSampler, ObjectViewSampler, ResumableLoader
 from svr.data.types import ShadingModel, collate_batch
-from svr.nmr.format import NUM_VIEWS, SPLITS, PathLike, is_nmr_shapenet, prepare_nmr, resolve_categories
+from svr.nmr.format import NUM_VIEWS, SPLITS, PathLike, check_split, is_nmr_shapenet, prepare_nmr, resolve_categories
 
 
 class SVRDataModule(pl.LightningDataModule):
@@ -96,8 +96,7 @@ class SVRDataModule(pl.LightningDataModule):
         """Puts one split on disk before an evaluation reads it (a command's explicit step, on one
         process while the others wait): its NMR files are converted to memory-mapped ``.npy`` when
         ``prepare`` is on."""
-        if split not in SPLITS:
-            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        check_split(split)
         if self.prepare:
             prepare_nmr(self.root, self.prepared_dir, self._category_keys, (split,), progress=progress)
 
@@ -238,8 +237,7 @@ class ProceduralDataModule(SVRDataModule):
 
     def prepare_split(self, split: str, progress: bool = True) -> None:
         """Generates the dataset if it is missing (all splits at once)."""
-        if split not in SPLITS:
-            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        check_split(split)
         self.prepare_data()
 
     def describe(self) -> str:

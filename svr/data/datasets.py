@@ -18,7 +18,7 @@ import torch
 from torch.utils.data import Dataset
 
 from sdfcommon.tooling.checks import check_int
-from svr.nmr.format import (BACKGROUND_MODES, KINDS, NUM_VIEWS, SPLITS, PathLike, check_npz, check_view_ids, images_to_float,
+from svr.nmr.format import (BACKGROUND_MODES, KINDS, NUM_VIEWS, PathLike, check_npz, check_split, check_view_ids, images_to_float,
                             nmr_file, open_prepared, read_npz, resolve_categories)
 
 
@@ -55,8 +55,7 @@ class NMRDataset(Dataset):
         self.root = Path(root).expanduser()
         if not self.root.is_dir():
             raise FileNotFoundError(f"NMR data folder does not exist: {self.root}")
-        if split not in SPLITS:
-            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        check_split(split)
         if black_background not in BACKGROUND_MODES:
             raise ValueError(f"black_background must be one of {BACKGROUND_MODES}, got {black_background!r}")
         self.split = split

@@ -30,7 +30,7 @@ from svr.distributed import RankInfo, gather_uneven
 from svr.evaluation.baselines import check_baselines, score_baselines
 from svr.evaluation.tables import EvaluationResult
 from svr.inference.prediction import LoadedModel, check_model, predict_sdf
-from svr.nmr.format import NUM_VIEWS, SPLITS, is_nmr_shapenet
+from svr.nmr.format import NUM_VIEWS, check_split, is_nmr_shapenet
 from svr.nmr.metrics import voxel_iou, voxels_protocol
 
 
@@ -217,11 +217,6 @@ def _check_datamodule(datamodule) -> None:
                         f"got {type(datamodule).__name__}")
 
 
-def _check_split(split: str) -> None:
-    if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
-
-
 def evaluate(model: LoadedModel, datamodule, split: str = "test", batch_size: Optional[int] = None,
              distributed: bool = False, **kwargs: Any) -> EvaluationResult:
     """``evaluate_objects`` on a data module's split (``svr.data.datamodules.NMRDataModule`` or
@@ -233,7 +228,7 @@ def evaluate(model: LoadedModel, datamodule, split: str = "test", batch_size: Op
         kwargs: as ``evaluate_objects``'s (views, compare_coarse, protocol_workers, progress, ...).
     """
     check_model(model)
-    _check_split(split)
+    check_split(split)
     _check_datamodule(datamodule)
     _distributed_ranks(distributed)  # refused before the data is opened
     return evaluate_objects(model, datamodule.dataset(split), datamodule.categories, split,

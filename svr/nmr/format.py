@@ -44,10 +44,16 @@ _ITEM = {"images": (IMAGE_SHAPE, np.dtype(np.uint8)), "voxels": (VOXEL_SHAPE, np
 BACKGROUND_MODES = ("composite", "invert", "keep")
 
 
-def nmr_file(root: PathLike, category_id: str, split: str, kind: str, ext: str = "npz") -> Path:
-    """``<root>/{cid}_{split}_{kind}.{ext}``; kind is "images" or "voxels", ext "npz" or "npy"."""
+def check_split(split: str) -> str:
+    """``split``, or a ValueError naming it unless it is one of ``SPLITS``."""
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    return split
+
+
+def nmr_file(root: PathLike, category_id: str, split: str, kind: str, ext: str = "npz") -> Path:
+    """``<root>/{cid}_{split}_{kind}.{ext}``; kind is "images" or "voxels", ext "npz" or "npy"."""
+    check_split(split)
     if kind not in KINDS:
         raise ValueError(f"kind must be one of {KINDS}, got {kind!r}")
     return Path(root) / f"{category_id}_{split}_{kind}.{ext}"
@@ -337,6 +343,6 @@ def check_view_ids(views: Optional[Sequence[int]], name: str = "views", allow_em
 
 __all__ = [
     "check_view_ids",
-    "NMR_CATEGORIES", "NMR_CATEGORY_IDS", "SPLITS", "NUM_VIEWS", "IMAGE_SHAPE", "VOXEL_SHAPE", "nmr_file", "read_npz_header",
+    "NMR_CATEGORIES", "NMR_CATEGORY_IDS", "SPLITS", "check_split", "NUM_VIEWS", "IMAGE_SHAPE", "VOXEL_SHAPE", "nmr_file", "read_npz_header",
     "check_npz", "read_npz", "open_prepared", "prepare_nmr", "read_metadata", "is_nmr_shapenet", "resolve_categories", "images_to_float",
 ]
