@@ -18,8 +18,8 @@ import torch
 from torch.utils.data import Dataset
 
 from sdfcommon.tooling.checks import check_int
-from svr.nmr.format import (BACKGROUND_MODES, KINDS, NUM_VIEWS, PathLike, check_npz, check_split, check_view_ids, images_to_float,
-                            nmr_file, open_prepared, read_npz, resolve_categories)
+from svr.nmr.format import (BACKGROUND_MODES, KINDS, NUM_VIEWS, PathLike, check_npz, check_split, check_view_ids,
+                            images_to_float, nmr_file, open_prepared, read_npz, resolve_categories)
 
 
 class NMRDataset(Dataset):
