@@ -18,6 +18,7 @@ import copy
 import importlib.resources
 import os
 import re
+import shlex
 import string
 import sys
 from pathlib import Path
@@ -74,6 +75,23 @@ def check_command_line(config_name: str, config_path: str, args: argparse.Namesp
         if args.help:
             print(_help_text(composed[0], config_name, jobs[0], args))
             raise SystemExit(0)
+
+
+def invoked_as(default: str) -> str:
+    """The start of a command line that runs this command again the way the user started it, for
+    advice they can paste (``Resume with: <this> ckpt_path=...``): ``python train.py`` for a
+    script, ``python -m <module>``, the console script's name (``sdfdiff-train``), or ``default``
+    when it was started otherwise (by a test runner)."""
+    argv = list(getattr(sys, "orig_argv", None) or [sys.executable, *sys.argv])
+    if len(argv) >= 3 and argv[1] == "-m" and argv[2] not in ("pytest", "unittest"):
+        return f"python -m {argv[2]}"
+    script = sys.argv[0] if sys.argv else ""
+    name = os.path.basename(script)
+    if name.startswith("sdfdiff-"):
+        return name
+    if name.endswith(".py") and len(argv) >= 2 and argv[1] == script:
+        return f"python {shlex.quote(script)}"
+    return default
 
 
 def report_usage_error(prog: str, message: str) -> None:
@@ -269,4 +287,4 @@ def _help_text(cfg: DictConfig, config_name: str, overrides: Sequence[str], args
 
 
 __all__ = ["check_command_line", "hydra_arguments", "report_usage_error", "composition_message", "settings_comments",
-           "USAGE_ERROR"]
+           "invoked_as", "USAGE_ERROR"]

@@ -11,8 +11,9 @@ one line, where hydra would print several with status 1, and ``--help`` shows ev
 its YAML comment. A failed run that wrote nothing but its records (``.hydra/``,
 ``*.log``, ``RUN_RECORDS``) leaves nothing behind: what it created goes, what existed before is
 restored to its bytes; a run that wrote results keeps them. Resolvers registered on import:
-``${first_set:a,b}`` (the first argument that is set) and ``${config_options:group}`` (a group's
-options, for help texts)."""
+``${first_set:a,b}`` (the first argument that is set), ``${config_options:group}`` (a group's
+options, for help texts) and ``${default_data_dir:}`` (``paths.data_dir``'s default,
+``default_data_dir``)."""
 from __future__ import annotations
 
 import os
@@ -45,6 +46,7 @@ CONFIG_PATH = f"pkg://{CONFIG_MODULE}"
 DEFAULT_PROG = "sdfdiff"  # a command's name in messages where its config has no hydra.help.app_name
 # Files a run writes about itself (not results): cleaned after a failed run that wrote nothing else.
 RUN_RECORDS = ("config.yaml", "settings.json")
+CHECKOUT_DATA_DIR = "data/cache"  # datasets of commands run in the checkout (default_data_dir)
 _RECORD_BYTES = 1 << 20  # records above this are not restored (a config or settings file is a few KiB)
 
 
@@ -330,13 +332,40 @@ def config_group_options(group: str) -> list[str]:
     return sorted(p.name[:-len(".yaml")] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
 
+def project_checkout() -> Optional[Path]:
+    """The source checkout the shipped configs come from (an editable install), or None when the
+    package was installed from a wheel."""
+    folder = config_folder()
+    if not isinstance(folder, Path):
+        return None
+    root = folder.parent
+    return root if (root / "train.py").is_file() and (root / "pyproject.toml").is_file() else None
+
+
+def user_cache_dir() -> Path:
+    """This project's folder in the user's cache: ``$XDG_CACHE_HOME/sdfdiff`` (``~/.cache/sdfdiff``)."""
+    return Path(os.environ.get("XDG_CACHE_HOME") or "~/.cache").expanduser() / "sdfdiff"
+
+
+def default_data_dir() -> str:
+    """Where generated and prepared datasets go unless ``paths.data_dir`` says otherwise:
+    ``data/cache`` when the command runs in the project's checkout (the README's commands), else
+    ``user_cache_dir()``, so a command started in any other folder never fills it with data."""
+    root = project_checkout()
+    if root is not None and Path.cwd().resolve() == root.resolve():
+        return CHECKOUT_DATA_DIR
+    return str(user_cache_dir())
+
+
 def _config_options(group: str) -> str:
     return ", ".join(config_group_options(group))
 
 
 OmegaConf.register_new_resolver("first_set", _first_set, replace=True)
 OmegaConf.register_new_resolver("config_options", _config_options, replace=True)
+OmegaConf.register_new_resolver("default_data_dir", default_data_dir, replace=True)
 
 
 __all__ = ["hydra_entry", "compose", "user_message", "USAGE_ERROR", "RUN_RECORDS",
-           "RunFolderGuard", "RunFolderSnapshot", "CONFIG_MODULE", "config_folder", "config_group_options"]
+           "RunFolderGuard", "RunFolderSnapshot", "CONFIG_MODULE", "config_folder", "config_group_options",
+           "project_checkout", "user_cache_dir", "default_data_dir", "CHECKOUT_DATA_DIR"]

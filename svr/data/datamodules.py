@@ -10,6 +10,7 @@ benchmark counts each view as one prediction), the validation loader can be thin
 """
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -17,9 +18,10 @@ import pytorch_lightning as pl
 from torch.utils.data import DataLoader, Dataset
 
 from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.commands import default_data_dir
 from svr.data.datasets import EvalViews, NMRDataset, TrainViews
-from svr.data.procedural.generator import (ProceduralSettings, default_workers, ensure_procedural_dataset, load_shading,
-                                           procedural_dataset_dir)
+from svr.data.procedural.generator import (METADATA_FILE, ProceduralSettings, default_workers, ensure_procedural_dataset,
+                                           load_shading, procedural_dataset_dir)
 from svr.data.samplers import EvalShardSampler, ObjectViewSampler, ResumableLoader
 from svr.data.types import ShadingModel, collate_batch
 from svr.nmr.format import NUM_VIEWS, SPLITS, PathLike, check_split, is_nmr_shapenet, prepare_nmr, resolve_categories
@@ -197,7 +199,9 @@ class ProceduralDataModule(SVRDataModule):
     ``<cache_dir>/procedural-<hash of the settings>`` and reused afterwards.
 
     Args:
-        cache_dir: where generated datasets live; a relative path is taken from the working directory.
+        cache_dir: where generated datasets live (default: ``default_data_dir()``, ``data/cache`` in
+            the checkout, the user's cache folder elsewhere); a relative path is taken from the
+            working directory.
         categories: procedural category names or ids (default: the 13 NMR ShapeNet categories).
         train, val, test: objects per category and split.
         data_seed: the dataset's seed (which objects); ``seed`` seeds the training draws.
@@ -208,7 +212,7 @@ class ProceduralDataModule(SVRDataModule):
         The other arguments are SVRDataModule's.
     """
 
-    def __init__(self, cache_dir: PathLike = "data/cache", categories: Optional[Sequence[str]] = None,
+    def __init__(self, cache_dir: Optional[PathLike] = None, categories: Optional[Sequence[str]] = None,
                  train: int = 32, val: int = 4, test: int = 6, data_seed: int = 0, supersample: int = 3,
                  voxel_rule: str = "protocol", batch_size: int = 32, eval_batch_size: int = 64, views_per_sample: int = 2,
                  samples_per_epoch: Optional[int] = None, category_balanced: bool = False,
@@ -220,7 +224,7 @@ class ProceduralDataModule(SVRDataModule):
         generation_workers = check_int(generation_workers, "generation_workers", minimum=0)
         settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample,
                                       voxel_rule)
-        cache = Path(cache_dir).expanduser().resolve()  # relative: from the working directory, as every path
+        cache = Path(default_data_dir() if cache_dir is None else cache_dir).expanduser().resolve()  # relative: from the working directory, as every path
         super().__init__(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
                          val_views, val_objects_per_category, num_workers, pin_memory, seed, "composite",
                          None, False)
@@ -232,7 +236,12 @@ class ProceduralDataModule(SVRDataModule):
         self.progress = progress
 
     def prepare_data(self) -> None:
-        """Generates the dataset if its cache folder does not exist yet."""
+        """Generates the dataset if its cache folder does not exist yet, after saying on stderr
+        where it goes and how large it will be."""
+        if not (self.root / METADATA_FILE).exists():
+            print(f"Generating the procedural dataset ({self.settings.num_objects()} objects, about "
+                  f"{self.settings.array_bytes() / 1e6:.0f} MB) into {self.root}; paths.data_dir (or data.cache_dir) "
+                  f"chooses another folder.", file=sys.stderr, flush=True)
         ensure_procedural_dataset(self.cache_dir, self.settings, progress=self.progress, workers=self.generation_workers)
 
     def prepare_split(self, split: str, progress: bool = True) -> None:

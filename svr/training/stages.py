@@ -24,6 +24,7 @@ from pytorch_lightning.callbacks import ModelCheckpoint
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
+from sdfcommon.tooling.command_line import invoked_as
 from sdfcommon.tooling.host_memory import keep_freed_memory
 from sdfcommon.tooling.outputs import remove_stale_temporaries
 from sdfcommon.tooling.settings import settings_record
@@ -308,7 +309,7 @@ def _stopped(trainer: pl.Trainer, stage: str, run: RunFolder, checkpoint: Option
     if checkpoint is None:
         return TrainingStopped(f"training stopped by SIGTERM in stage {stage}; no checkpoint was saved at the signal")
     message = (f"training stopped by SIGTERM in stage {stage} at step {int(trainer.global_step)}; saved "
-               f"{checkpoint}. Resume with: python train.py ckpt_path={run.root}")
+               f"{checkpoint}. Resume with: {invoked_as('python train.py')} ckpt_path={run.root}")
     if launch_rank_is_zero():
         print(message, file=sys.stderr, flush=True)
     return TrainingStopped(message, checkpoint=checkpoint)

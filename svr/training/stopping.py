@@ -15,6 +15,7 @@ from typing import Any, Callable, Iterator, Optional
 import pytorch_lightning as pl
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
+from sdfcommon.tooling.command_line import invoked_as
 from svr.distributed import launch_rank_is_zero
 
 
@@ -49,7 +50,7 @@ class StopRequest:
             self.pending = True
             return
         message = (f"training stopped by signal {signum} outside a training step; resume from the latest "
-                   f"checkpoint with: python train.py ckpt_path={self.run_dir}")
+                   f"checkpoint with: {invoked_as('python train.py')} ckpt_path={self.run_dir}")
         if launch_rank_is_zero():
             print(message, file=sys.stderr, flush=True)
         raise TrainingStopped(message, signum)

@@ -273,6 +273,15 @@ class ProceduralSettings:
     def sizes(self) -> dict[str, int]:
         return {split: getattr(self, split) for split in SPLITS}
 
+    def num_objects(self) -> int:
+        """Objects in the dataset, all categories and splits."""
+        return sum(self.sizes().values()) * len(self.categories)
+
+    def array_bytes(self) -> int:
+        """Bytes of the dataset's uint8 images and bool voxels as arrays (the .npy files; the
+        compressed .npz copies add a few per cent)."""
+        return self.num_objects() * (math.prod(IMAGE_SHAPE) + math.prod(VOXEL_SHAPE))
+
     def category_pairs(self) -> list[tuple[str, str]]:
         """(id, name) per category, in the dataset's order."""
         return [(procedural_category(n).category_id, n) for n in self.categories]
@@ -454,7 +463,7 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
                   for cid, name in settings.category_pairs() for split in SPLITS
                   for a in range(0, getattr(settings, split), CHUNK_OBJECTS)]
         todo = [c for c in chunks if not (done_dir / c.marker).exists()]
-        total = sum(settings.sizes().values()) * len(settings.categories)
+        total = settings.num_objects()
         bar = tqdm(total=total, initial=total - sum(c.stop - c.start for c in todo), unit="obj",
                    desc=f"procedural dataset -> {out.name}", disable=not progress)
 

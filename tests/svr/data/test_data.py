@@ -369,6 +369,27 @@ def test_make_procedural_script_reuses_the_cache(tiny_procedural, capsys):
     assert str(root) in capsys.readouterr().out
 
 
+def test_outside_the_checkout_data_goes_to_the_user_cache_and_generation_says_where(tmp_path, monkeypatch, capsys):
+    from sdfcommon.tooling.commands import compose, project_checkout
+
+    monkeypatch.chdir(project_checkout())
+    assert compose("train").paths.data_dir == "data/cache"  # the README's commands, run in the checkout
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "user-cache"))
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert compose("train").paths.data_dir == str(tmp_path / "user-cache" / "sdfdiff")
+    dm = ProceduralDataModule(categories=["mug"], train=1, val=1, test=1, supersample=1, progress=False,
+                              generation_workers=0)
+    assert dm.root.parent == tmp_path / "user-cache" / "sdfdiff"
+    dm.prepare_data()
+    said = capsys.readouterr().err
+    assert f"(3 objects, about 1 MB) into {dm.root};" in said and "paths.data_dir" in said
+    assert (dm.root / "metadata.json").exists() and list(elsewhere.iterdir()) == []
+    dm.prepare_data()  # present: nothing generated, nothing said
+    assert "Generating" not in capsys.readouterr().err
+
+
 def test_relative_cache_dir_is_taken_from_the_working_directory(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     dm = ProceduralDataModule(cache_dir="data/cache", train=1, val=1, test=1, progress=False)
