@@ -34,7 +34,7 @@ test: install
 	$(PY) -m pytest -q
 
 test-slow: install
-	$(PY) -m pytest -q -m slow
+	$(PY) -m pytest -q -m slow -n 0
 
 # The main job: single-view training (experiment=demo) on the built-in procedural data, then the
 # benchmark IoU table, pictures and meshes in outputs/demo/. Run again to resume a stopped run.

@@ -1,12 +1,29 @@
-"""Shared test set-up: skip `cuda` tests where no GPU is usable; quiet the fallback warning; Ctrl+C
-for the tests that send it (``ctrl_c_raises``)."""
+"""Shared test set-up: the number of worker processes and OpenMP's idle policy for them; skip
+`cuda` tests where no GPU is usable; quiet the fallback warning; Ctrl+C for the tests that send it
+(``ctrl_c_raises``); the user's cache folder (``XDG_CACHE_HOME``, where commands run outside the
+checkout put generated data) is a temporary folder for the whole session, for this process and
+the commands it starts."""
 from __future__ import annotations
 
+import os
 import signal
+import tempfile
 import warnings
 
-import pytest
-import torch
+# The suite runs in several worker processes (pyproject.toml: -n auto), each with torch's and
+# numba's threads on the shared OpenMP runtime: its idle threads must sleep rather than spin, or
+# the workers take each other's cores. Read when the OpenMP library loads, so before torch.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import pytest  # noqa: E402
+import torch  # noqa: E402
+
+MAX_WORKERS = 4  # each worker holds torch and numba (about 0.5 GiB); more rarely pays on one machine
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto``: one worker per core this process may use, at most MAX_WORKERS."""
+    return max(1, min(len(os.sched_getaffinity(0)), MAX_WORKERS))
 
 
 def _cuda_ok() -> bool:
@@ -18,6 +35,25 @@ def _cuda_ok() -> bool:
         return renderer.backend_available("cuda")[0]
     except Exception:
         return False
+
+
+def pytest_configure(config):
+    folder = tempfile.mkdtemp(prefix="sdfdiff-test-cache-")
+    config._sdfdiff_cache = (os.environ.get("XDG_CACHE_HOME"), folder)
+    os.environ["XDG_CACHE_HOME"] = folder
+
+
+def pytest_unconfigure(config):
+    import shutil
+
+    previous, folder = getattr(config, "_sdfdiff_cache", (None, None))
+    if folder is None:
+        return
+    shutil.rmtree(folder, ignore_errors=True)
+    if previous is None:
+        os.environ.pop("XDG_CACHE_HOME", None)
+    else:
+        os.environ["XDG_CACHE_HOME"] = previous
 
 
 def pytest_collection_modifyitems(config, items):

@@ -71,11 +71,13 @@ def test_installed_console_scripts_print_their_help_outside_the_checkout(wheel, 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     env = {**os.environ, "PYTHONPATH": str(target)}
-    for script in SCRIPTS:
-        out = subprocess.run([sys.executable, str(target / "bin" / script), "--help"], cwd=elsewhere, env=env,
-                             capture_output=True, text=True, timeout=300)
-        assert out.returncode == 0, f"{script}: {out.stderr[-2000:]}"
-        assert script in out.stdout, out.stdout[-2000:]
+    running = {script: subprocess.Popen([sys.executable, str(target / "bin" / script), "--help"], cwd=elsewhere,
+                                        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+               for script in SCRIPTS}  # at once: each is a start-up (imports) of a few seconds
+    for script, process in running.items():
+        stdout, stderr = process.communicate(timeout=300)
+        assert process.returncode == 0, f"{script}: {stderr[-2000:]}"
+        assert script in stdout, stdout[-2000:]
     probe = subprocess.run([sys.executable, "-c", "import sdfdiff_configs, svr; print(sdfdiff_configs.__file__, "
                             "svr.__file__)"], cwd=elsewhere, env=env, capture_output=True, text=True, timeout=120)
     assert probe.stdout.split() == [str(target / "sdfdiff_configs" / "__init__.py"), str(target / "svr" / "__init__.py")]
