@@ -26,7 +26,8 @@ log = logging.getLogger(__name__)
 
 # What may differ from a run's saved config when it is resumed: where and how fast it runs, and
 # how long the stages train. Everything else (model, data, losses, schedule) must stay.
-RESUMABLE_KEYS = ("ckpt_path", "trainer.", "data.num_workers", "data.pin_memory", "data.progress",
+RESUME_KEY = "ckpt_path"  # names the run (or checkpoint) to go on with
+RESUMABLE_KEYS = (RESUME_KEY, "trainer.", "data.num_workers", "data.pin_memory", "data.progress",
                   "data.generation_workers", "stage.*.max_steps", "stage.*.max_time", "callbacks.progress_bar.")
 
 
@@ -116,6 +117,8 @@ def resume_config(saved: DictConfig, requested: DictConfig, overrides: Sequence[
             refused.append(path)
             continue
         OmegaConf.update(merged, path, None if new is missing else new, merge=False)
+        if path == RESUME_KEY:
+            continue  # the request to resume, not a change of the run's settings
         changes.append(f"{path}: {None if old is missing else old!r} -> {None if new is missing else new!r}")
     if refused:
         shown = ", ".join(refused[:4]) + (f" and {len(refused) - 4} more" if len(refused) > 4 else "")

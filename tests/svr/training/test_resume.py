@@ -129,6 +129,9 @@ def test_resume_config_keeps_the_run_and_names_what_may_not_change(data_override
     again = compose_train(tiny_overrides(data_overrides, 2))  # the defaults of a new command differ
     merged, changes = resume_config(saved, again, ["ckpt_path=x.ckpt"])
     assert merged.stage.coarse.max_steps == 5 and changes == []
+    resuming = compose_train([*tiny_overrides(data_overrides, 2), "ckpt_path=x.ckpt"])
+    merged, changes = resume_config(saved, resuming, ["ckpt_path=x.ckpt"])
+    assert merged.ckpt_path == "x.ckpt" and changes == []  # resuming is not a changed setting to warn about
     longer = compose_train(tiny_overrides(data_overrides, 5, "stage.coarse.max_steps=9", "trainer.accelerator=cpu"))
     merged, changes = resume_config(saved, longer, ["stage.coarse.max_steps=9", "trainer.accelerator=cpu"])
     assert merged.stage.coarse.max_steps == 9 and merged.stage.refine.max_steps == 5
