@@ -1,4 +1,4 @@
-"""Long runs (``pytest -m slow``): the torus benchmark at full scale (the parameter studies:
+"""Long runs (``pytest -m slow -n 0``): the torus benchmark at full scale (the parameter studies:
 tests/benchmarks/test_mvr_parameter_study.py)."""
 from __future__ import annotations
 
