@@ -161,7 +161,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--test", type=int, default=None, help="test objects per category (default: preset's)")
     parser.add_argument("--oracle-objects", type=int, default=None,
                         help="oracle on the first N test objects per category (default: all)")
-    parser.add_argument("--cache-dir", type=Path, default=None, help="default: paths.data_dir (data/cache in the checkout)")
+    parser.add_argument("--cache-dir", type=Path, default=None,
+                        help="default: paths.data_dir (data/cache in the checkout)")
     parser.add_argument("--out", type=Path, default=None,
                         help="stem of the .md/.json/.png outputs (default: docs/procedural_dispersion_<preset>; "
                              "a probe writes only when given)")

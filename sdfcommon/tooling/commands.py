@@ -348,7 +348,7 @@ def user_cache_dir() -> Path:
 
 
 def default_data_dir() -> str:
-    """Where generated and prepared datasets go unless ``paths.data_dir`` says otherwise:
+    """Where generated datasets go unless ``paths.data_dir`` says otherwise:
     ``data/cache`` when the command runs in the project's checkout (the README's commands), else
     ``user_cache_dir()``, so a command started in any other folder never fills it with data."""
     root = project_checkout()

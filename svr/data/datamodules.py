@@ -20,8 +20,8 @@ from torch.utils.data import DataLoader, Dataset
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.commands import default_data_dir
 from svr.data.datasets import EvalViews, NMRDataset, TrainViews
-from svr.data.procedural.generator import (METADATA_FILE, ProceduralSettings, default_workers, ensure_procedural_dataset,
-                                           load_shading, procedural_dataset_dir)
+from svr.data.procedural.generator import (METADATA_FILE, ProceduralSettings, default_workers,
+                                           ensure_procedural_dataset, load_shading, procedural_dataset_dir)
 from svr.data.samplers import EvalShardSampler, ObjectViewSampler, ResumableLoader
 from svr.data.types import ShadingModel, collate_batch
 from svr.nmr.format import NUM_VIEWS, SPLITS, PathLike, check_split, is_nmr_shapenet, prepare_nmr, resolve_categories
@@ -224,7 +224,8 @@ class ProceduralDataModule(SVRDataModule):
         generation_workers = check_int(generation_workers, "generation_workers", minimum=0)
         settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample,
                                       voxel_rule)
-        cache = Path(default_data_dir() if cache_dir is None else cache_dir).expanduser().resolve()  # relative: from the working directory, as every path
+        # a relative path: from the working directory, as every path
+        cache = Path(default_data_dir() if cache_dir is None else cache_dir).expanduser().resolve()
         super().__init__(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
                          val_views, val_objects_per_category, num_workers, pin_memory, seed, "composite",
                          None, False)
