@@ -37,6 +37,7 @@ from mvr.error_map import error_picture
 from mvr.metrics import one_sided_distances
 from mvr.reconstruct import default_scene
 from mvr.settings import compose_config, reconstruct_kwargs
+from mvr.targets import boundary_edges, close_small_holes
 from sdfcommon.tooling import outputs
 from sdfcommon.tooling.outputs import ensure_output_dir
 from sdfcommon.tooling.settings import build_settings
@@ -67,15 +68,11 @@ def paper_value(name: str) -> Optional[float]:
     return None
 
 
-def boundary_edges(mesh) -> int:
-    """Edges used by exactly one face (holes' rims)."""
-    return int(len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)))
-
-
 def prepare_meshes(folder: Path, names: Sequence[str], work: Path, max_hole_edges: int) -> list[PreparedMesh]:
     """The meshes of ``folder`` (all supported files, or those whose stem is in ``names``), each
     checked: watertight ones as they are; ones with at most ``max_hole_edges`` boundary edges closed
-    by ``trimesh.repair.fill_holes`` into ``work/<stem>.ply``; the rest left out with the reason."""
+    (``mvr.targets.close_small_holes``, as ``target_settings.max_hole_edges`` does for a run) into
+    ``work/<stem>.ply``; the rest left out with the reason."""
     if not folder.is_dir():
         raise ValueError(f"mesh folder {str(folder)!r} is not a folder")
     files = sorted(p for p in folder.iterdir() if p.suffix.lower() in MESH_FORMATS and p.is_file())
@@ -106,8 +103,9 @@ def prepare_meshes(folder: Path, names: Sequence[str], work: Path, max_hole_edge
             prepared.append(PreparedMesh(path.stem, None, f"left out: {open_edges} boundary edges "
                                                            f"(> --max-hole-edges {max_hole_edges})"))
             continue
-        trimesh.repair.fill_holes(mesh)
-        if not mesh.is_watertight:
+        try:
+            close_small_holes(mesh, max_hole_edges, str(path))
+        except ValueError:
             prepared.append(PreparedMesh(path.stem, None, f"left out: still open after filling its "
                                                            f"{open_edges} boundary edges"))
             continue

@@ -72,17 +72,20 @@ class GridSettings:
 @dataclass(frozen=True)
 class TargetSettings:
     """How the target is prepared (see mvr.targets): the normalised extent (longest bbox side,
-    world), the shading normals ("smooth"/"face"), and the meshing resolution of built-in shapes."""
+    world), the shading normals ("smooth"/"face"), the meshing resolution of built-in shapes, and
+    how many boundary edges of a mesh file's holes may be closed (0: such a mesh is refused)."""
 
     extent: float = 1.6
     normals: str = "smooth"
     mesh_resolution: int = 192
+    max_hole_edges: int = 0
 
     def __post_init__(self) -> None:
         check_positive(self.extent, "extent")
         if self.normals not in NORMAL_MODES:
             raise ValueError(f"normals must be one of {', '.join(NORMAL_MODES)}, got {self.normals!r}")
         check_int(self.mesh_resolution, "mesh_resolution", minimum=16)
+        check_int(self.max_hole_edges, "max_hole_edges", minimum=0)
 
 
 @dataclass(frozen=True)
@@ -274,7 +277,8 @@ def reconstruct(
     state = _load_resume_point(plan.out, plan.fingerprint, len(plan.resolutions)) if resume else None
     t0 = time.perf_counter()
     tgt = target if isinstance(target, Target) else make_target(
-        plan.spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution)
+        plan.spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution,
+        target_settings.max_hole_edges)
     seconds_target = time.perf_counter() - t0
     _prepare_out_dir(plan, resume)
     log.info("target %s: %d faces, bbox diagonal %.4f", tgt.source, len(tgt.mesh.faces), tgt.diagonal)
@@ -551,6 +555,7 @@ def _describe_run(seconds: _Seconds, state: Optional[_ResumePoint], reports: lis
         "mesh_components": int(len(mesh.split(only_watertight=False))) if len(mesh.faces) else 0,
         "mesh_genus": (2 - int(mesh.euler_number)) / 2 if len(mesh.faces) else None,
         "target_genus": (2 - int(tgt.mesh.euler_number)) / 2,
+        "target_holes_closed": tgt.holes_closed,
         "backend": backend_used,
         "threads": torch.get_num_threads(),
     }

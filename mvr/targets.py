@@ -9,10 +9,13 @@ renders with. The optimiser never sees an image made by its own renderer. Normal
 ``"smooth"`` (default) interpolates the mesh's vertex normals with the barycentric weights of the
 hit, the right choice for meshes that approximate smooth surfaces (our renderer's normals are
 themselves smooth: interpolated finite differences); ``"face"`` uses each triangle's own normal,
-right for meshes with sharp, flat facets.
+right for meshes with sharp, flat facets. A mesh file with a few small holes (a scan) can be
+closed on request (``close_small_holes``, ``target_settings.max_hole_edges``); without that request
+a mesh that is not watertight is refused.
 """
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -27,6 +30,8 @@ from sdfcommon.numerics.raycast import RayCaster, mesh_caster
 from sdfcommon.tooling.checks import check_int, check_positive
 
 from .shapes import SHAPES
+
+log = logging.getLogger(__name__)
 
 MESH_FORMATS = (".obj", ".ply", ".off", ".stl", ".glb")
 NORMAL_MODES = ("smooth", "face")
@@ -64,6 +69,7 @@ class Target:
         self.mesh = mesh
         self.scale = float(scale)
         self.normals = normals
+        self.holes_closed = 0  # boundary edges closed when the mesh file was read (make_target)
         self._caster: Optional[RayCaster] = None
 
     @property
@@ -104,12 +110,53 @@ class Target:
         return TargetImages(images=image.reshape(v, h, w, -1).float(), masks=mask.reshape(v, h, w))
 
 
-def load_mesh(path: str | Path) -> trimesh.Trimesh:
-    """Reads a closed triangle mesh from a file and orients it outwards.
+def boundary_edges(mesh: trimesh.Trimesh) -> int:
+    """Edges used by exactly one face: the rims of the mesh's holes."""
+    return int(len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)))
+
+
+def close_small_holes(mesh: trimesh.Trimesh, max_hole_edges: int, name: str) -> int:
+    """Closes the holes of a mesh that is not watertight (``trimesh.repair.fill_holes``, in place)
+    when they have at most ``max_hole_edges`` boundary edges in all.
+
+    Args:
+        name: the mesh's file, for the messages.
+    Returns:
+        the boundary edges closed (0 for a watertight mesh).
+    Raises:
+        ValueError naming ``name``: more boundary edges than allowed, no boundary edge but still not
+        watertight (non-manifold edges, which filling cannot mend), or still open after filling.
+    """
+    check_int(max_hole_edges, "max_hole_edges", minimum=0)
+    if mesh.is_watertight:
+        return 0
+    advice = ("multi-view reconstruction and its error need a closed surface; repair the mesh first "
+              "(e.g. trimesh.repair.fill_holes)")
+    open_edges = boundary_edges(mesh)
+    if open_edges == 0:
+        raise ValueError(f"target mesh file {name!r} is not watertight ({len(mesh.faces)} faces, non-manifold "
+                         f"edges but no hole to fill): {advice}")
+    if open_edges > max_hole_edges:
+        raise ValueError(f"target mesh file {name!r} is not watertight ({len(mesh.faces)} faces, {open_edges} "
+                         f"boundary edges): {advice}, or let target_settings.max_hole_edges={open_edges} close "
+                         f"its holes (now {max_hole_edges})")
+    trimesh.repair.fill_holes(mesh)
+    if not mesh.is_watertight:
+        raise ValueError(f"target mesh file {name!r} is still open after filling its {open_edges} boundary edges: "
+                         f"{advice}")
+    return open_edges
+
+
+def load_mesh(path: str | Path, max_hole_edges: int = 0) -> trimesh.Trimesh:
+    """Reads a closed triangle mesh from a file and orients it outwards. With ``max_hole_edges``
+    above 0, holes of at most that many boundary edges in all are closed first
+    (``close_small_holes``), with a warning that says how many; the mesh's ``metadata`` records
+    them as ``"holes_closed"``.
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unsupported format, unreadable, empty, or not watertight (each names the file).
+        ValueError: unsupported format, unreadable, empty, or not watertight beyond what
+            ``max_hole_edges`` allows (each names the file).
     """
     p = Path(path)
     suffix = p.suffix.lower()
@@ -136,11 +183,11 @@ def load_mesh(path: str | Path) -> trimesh.Trimesh:
         raise ValueError(f"target mesh file {str(p)!r} holds no triangles")
     if not np.isfinite(mesh.vertices).all():
         raise ValueError(f"target mesh file {str(p)!r} has non-finite vertex coordinates")
-    if not mesh.is_watertight:
-        raise ValueError(
-            f"target mesh file {str(p)!r} is not watertight ({len(mesh.faces)} faces, open or non-manifold "
-            f"edges): multi-view reconstruction and its error need a closed surface; repair the mesh "
-            f"first (e.g. trimesh.repair.fill_holes)")
+    closed = close_small_holes(mesh, max_hole_edges, str(p))
+    if closed:
+        log.warning("target mesh file %s: closed holes with %d boundary edges (trimesh.repair.fill_holes)",
+                    p, closed)
+    mesh.metadata["holes_closed"] = closed
     if mesh.volume < 0:
         mesh.invert()
     return mesh
@@ -189,7 +236,8 @@ def normalise_mesh(mesh: trimesh.Trimesh, extent: float) -> tuple[trimesh.Trimes
     return out, scale
 
 
-def make_target(spec: str, extent: float = 1.6, normals: str = "smooth", mesh_resolution: int = 192) -> Target:
+def make_target(spec: str, extent: float = 1.6, normals: str = "smooth", mesh_resolution: int = 192,
+                max_hole_edges: int = 0) -> Target:
     """The target named by ``spec``: a built-in shape name (see ``mvr.shapes.SHAPES``) or a mesh file.
 
     Args:
@@ -198,6 +246,8 @@ def make_target(spec: str, extent: float = 1.6, normals: str = "smooth", mesh_re
             must hold it).
         normals: "smooth" or "face" (see the module docstring).
         mesh_resolution: marching-cubes samples along the longest side for built-in shapes.
+        max_hole_edges: a mesh file's holes of at most this many boundary edges in all are closed
+            (``close_small_holes``; 0: a mesh that is not watertight is refused).
     """
     if not isinstance(spec, (str, Path)) or not str(spec):
         raise TypeError(f"target must be a shape name or a mesh file path, got {spec!r}")
@@ -209,5 +259,8 @@ def make_target(spec: str, extent: float = 1.6, normals: str = "smooth", mesh_re
     if Path(spec).suffix == "" and not Path(spec).exists():
         raise ValueError(f"target {spec!r} is neither a built-in shape ({', '.join(SHAPES)}) nor a mesh "
                          f"file ({', '.join(MESH_FORMATS)})")
-    mesh, scale = normalise_mesh(load_mesh(spec), extent)
-    return Target(Path(spec).stem, str(spec), mesh, scale, normals)
+    loaded = load_mesh(spec, max_hole_edges)
+    mesh, scale = normalise_mesh(loaded, extent)
+    target = Target(Path(spec).stem, str(spec), mesh, scale, normals)
+    target.holes_closed = int(loaded.metadata.get("holes_closed", 0))
+    return target

@@ -57,6 +57,23 @@ def test_bad_targets_and_settings_are_one_line_and_leave_nothing(tmp_path, monke
         assert not out.exists(), (override, sorted(files_under(out)))
 
 
+def test_a_scan_with_a_small_hole_goes_in_on_request(tmp_path, monkeypatch, capsys):
+    """Issue 42 point 3: target_settings.max_hole_edges closes a mesh file's small holes, says how
+    many boundary edges it closed and records them in metrics.json; without it the refusal names
+    the setting and the value that would do."""
+    open_box = tmp_path / "open.ply"
+    box = trimesh.creation.box()
+    trimesh.Trimesh(box.vertices, box.faces[:-2]).export(open_box)  # one square hole: 4 boundary edges
+    line = refused([f"target={open_box}", f"out_dir={tmp_path / 'refused'}"], monkeypatch, capsys)
+    assert "4 boundary edges" in line and "target_settings.max_hole_edges=4" in line
+    out = tmp_path / "run"
+    run_entry(main, [f"target={open_box}", f"out_dir={out}", "target_settings.max_hole_edges=4", *QUIET],
+              monkeypatch)
+    said = capsys.readouterr()
+    assert "closed holes with 4 boundary edges" in said.out + said.err  # hydra's log handler: stdout
+    assert json.loads((out / "metrics.json").read_text())["target_holes_closed"] == 4
+
+
 @pytest.mark.parametrize("override, message", [("+nonsense=1", "nonsense: unknown setting"),
                                                ("+optim.nope=1", "optim.nope: unknown setting"),
                                                ("resume=sometimes", "resume must be"),

@@ -80,6 +80,16 @@ def test_bad_mesh_files(tmp_path):
     open_mesh.export(path)
     with pytest.raises(ValueError, match=r"open\.ply.*not watertight"):
         make_target(str(path))
+    with pytest.raises(ValueError, match=r"open\.ply.*6 boundary edges.*max_hole_edges=6 close its holes \(now 5\)"):
+        make_target(str(path), max_hole_edges=5)
+    with pytest.raises(ValueError, match=r"open\.ply.*still open after filling its 6 boundary edges"):
+        make_target(str(path), max_hole_edges=6)  # a hexagonal hole: fill_holes closes triangles and quads
+    one_face = trimesh.creation.icosphere(subdivisions=2)
+    one_face.update_faces(np.arange(len(one_face.faces)) > 0)
+    one_face.export(tmp_path / "one_face.ply")
+    closed = make_target(str(tmp_path / "one_face.ply"), max_hole_edges=3)
+    assert closed.holes_closed == 3 and closed.mesh.is_watertight and closed.mesh.volume > 0
+    assert make_target("sphere", mesh_resolution=32, max_hole_edges=3).holes_closed == 0
     garbage = tmp_path / "garbage.off"
     garbage.write_bytes(b"\x00\x01 not a mesh")
     with pytest.raises(ValueError, match="garbage.off"):
