@@ -23,7 +23,8 @@ MAX_WORKERS = 4  # each worker holds torch and numba (about 0.5 GiB); more rarel
 
 def pytest_xdist_auto_num_workers(config):
     """``-n auto``: one worker per core this process may use, at most MAX_WORKERS."""
-    return max(1, min(len(os.sched_getaffinity(0)), MAX_WORKERS))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, MAX_WORKERS))
 
 
 def _cuda_ok() -> bool:
