@@ -59,9 +59,11 @@ class Target:
         mesh: trimesh.Trimesh in world coordinates (centred, longest bbox side ``extent``).
         scale: the factor applied to the source's coordinates (after centring).
         normals: "smooth" or "face", how hits are shaded.
+        holes_closed: boundary edges of the mesh file's holes closed when it was read (0: none).
     """
 
-    def __init__(self, name: str, source: str, mesh: trimesh.Trimesh, scale: float, normals: str = "smooth"):
+    def __init__(self, name: str, source: str, mesh: trimesh.Trimesh, scale: float, normals: str = "smooth",
+                 holes_closed: int = 0):
         if normals not in NORMAL_MODES:
             raise ValueError(f"normals must be one of {NORMAL_MODES}, got {normals!r}")
         self.name = name
@@ -69,7 +71,7 @@ class Target:
         self.mesh = mesh
         self.scale = float(scale)
         self.normals = normals
-        self.holes_closed = 0  # boundary edges closed when the mesh file was read (make_target)
+        self.holes_closed = int(holes_closed)
         self._caster: Optional[RayCaster] = None
 
     @property
@@ -261,6 +263,4 @@ def make_target(spec: str, extent: float = 1.6, normals: str = "smooth", mesh_re
                          f"file ({', '.join(MESH_FORMATS)})")
     loaded = load_mesh(spec, max_hole_edges)
     mesh, scale = normalise_mesh(loaded, extent)
-    target = Target(Path(spec).stem, str(spec), mesh, scale, normals)
-    target.holes_closed = int(loaded.metadata.get("holes_closed", 0))
-    return target
+    return Target(Path(spec).stem, str(spec), mesh, scale, normals, loaded.metadata["holes_closed"])
