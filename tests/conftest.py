@@ -6,6 +6,7 @@ the commands it starts."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import tempfile
 import warnings
@@ -45,8 +46,6 @@ def pytest_configure(config):
 
 
 def pytest_unconfigure(config):
-    import shutil
-
     previous, folder = getattr(config, "_sdfdiff_cache", (None, None))
     if folder is None:
         return
