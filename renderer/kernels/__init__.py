@@ -152,7 +152,7 @@ def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], 
         # Views: the kernels write the output tensors in place. One kernel at a time: numba's
         # workqueue pool (see _start_thread_pool) aborts the process on concurrent launches from
         # several Python threads.
-        arrays = [x.numpy() if isinstance(x, torch.Tensor) else x for x in tensors]
+        arrays = [x.detach().numpy() if isinstance(x, torch.Tensor) else x for x in tensors]
         with _CPU_LAUNCH_LOCK, numba.parallel_chunksize(CPU_CHUNK_BLOCKS), _keeping_torch_threads():
             numba.set_num_threads(_kernel_threads())
             cpu_kernel(*arrays)
@@ -165,7 +165,10 @@ def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], 
         # Launch on torch's current stream: ordered after the ops that made the inputs and before
         # those that read the outputs, without a synchronisation.
         stream = cuda.external_stream(torch.cuda.current_stream(device).cuda_stream)
-        arrays = [cuda.as_cuda_array(x, sync=False) if isinstance(x, torch.Tensor) else x for x in tensors]
+        # detach(): torch refuses the array interface of a tensor that requires grad (the backward's
+        # saved silhouette is such an output); the kernels read and write the same storage.
+        arrays = [cuda.as_cuda_array(x.detach(), sync=False) if isinstance(x, torch.Tensor) else x
+                  for x in tensors]
         blocks = (rays + CUDA_THREADS_PER_BLOCK - 1) // CUDA_THREADS_PER_BLOCK
         cuda_kernel[blocks, CUDA_THREADS_PER_BLOCK, stream](*arrays)
 

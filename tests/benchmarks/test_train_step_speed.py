@@ -29,6 +29,14 @@ def test_toy_step_benchmark_measures_every_phase(tmp_path):
     assert "| 2.00x |" in compare_table(slower, res)
 
 
+def test_pixel_head_with_mirror_axis_auto_is_built_as_training_builds_it(tmp_path):
+    """model=pixel's mirror_axis "auto" (the demo's model) is measured on the training split, as
+    the training command does, instead of failing in the network's constructor."""
+    overrides = [o for o in _toy(tmp_path) if o != "model=tiny"] + ["model=pixel"]
+    res = run_phases(overrides, "cpu", repeats=1, stages=False)
+    assert set(res["phases"]) == set(PHASES)
+
+
 @pytest.mark.slow
 def test_baseline_measures_another_checkout_with_its_own_code_and_configs(tmp_path, capsys):
     """A copy of this checkout's packages and configs, one config default changed (2 -> 3 views per
