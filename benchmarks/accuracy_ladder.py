@@ -48,7 +48,8 @@ ROWS = {
 def read_per_object(path: Path) -> dict[tuple[str, int], dict[str, float]]:
     """A per_object.csv (``svr.evaluation.tables.write_report``) keyed by (category name, object index)."""
     with open(path, newline="") as f:
-        return {(r["category"], int(r["object_index"])): {k: float(v) for k, v in r.items() if k.startswith("iou_")}
+        return {(r["category"], int(r["object_index"])): {k: float(v) for k, v in r.items()
+                                                          if k.startswith(("iou_", "side_iou_"))}
                 for r in csv.DictReader(f)}
 
 
@@ -126,17 +127,25 @@ def ladder(objects: dict[str, dict[tuple[str, int], dict[str, float]]], lookup: 
                  for c, name in enumerate(categories) if c in per_cat}
         rows[key] = {"label": label, "categories": table,
                      "mean": float(np.mean([r["iou"] for r in table.values()])), "interval": overall}
+        if source is not None and source[1] == "iou_mean" and "side_iou_mean" in objects[source[0]][keys[0]]:
+            side = np.array([objects[source[0]][k]["side_iou_mean"] for k in keys])
+            _, side_interval = bootstrap_means(side, cat)
+            rows[key]["side_views"] = {"mean": float(np.mean([side[cat == c].mean() for c in np.unique(cat)])),
+                                       "interval": side_interval}
     return {"rows": rows, "objects": len(keys)}
 
 
 def markdown_table(summary: dict) -> str:
     """Rows of the ladder as table rows, categories as columns, the mean last."""
     names = list(next(iter(summary["rows"].values()))["categories"])
-    lines = ["| row | " + " | ".join(names) + " | **mean** |", "|---|" + "---:|" * (len(names) + 1)]
+    lines = ["| row | " + " | ".join(names) + " | **mean** | side views |", "|---|" + "---:|" * (len(names) + 2)]
     for r in summary["rows"].values():
         cells = [f"{r['categories'][n]['iou']:.3f}" for n in names]
         lo, hi = r["interval"]
-        lines.append(f"| {r['label']} | " + " | ".join(cells) + f" | **{r['mean']:.3f}** [{lo:.3f}, {hi:.3f}] |")
+        side = r.get("side_views")
+        side_cell = f"{side['mean']:.3f} [{side['interval'][0]:.3f}, {side['interval'][1]:.3f}]" if side else ""
+        lines.append(f"| {r['label']} | " + " | ".join(cells) + f" | **{r['mean']:.3f}** [{lo:.3f}, {hi:.3f}] | "
+                     f"{side_cell} |")
     return "\n".join(lines) + "\n"
 
 
@@ -235,7 +244,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             f"Command: `{command.strip()}` ({seconds / 60:.1f} min this time; training: {trained}).\n\n"
             f"{machine_info()}\n\nTest split, {summary['objects']} objects, all 24 views each, scored by the "
             f"benchmark protocol; the interval is a 95% bootstrap over test objects (resampled within each "
-            f"category). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}`"
+            f"category). Side views: the trained rows' silhouette IoU from the views 90 degrees either side of the "
+            f"input (`svr.nmr.side_views`; mean over categories, interval as above). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}`"
             f"{' (+ `loss=voxels` for the 3D-supervised one)' if 'voxels' in args.rows else ''}"
             f"{' with ' + ' '.join(args.overrides) if args.overrides else ''}."
             f"{'' if 'voxels' in args.rows else ' The 3D-supervised row was not run (`--rows shipped`).'}"

@@ -32,6 +32,7 @@ from svr.evaluation.tables import EvaluationResult
 from svr.inference.prediction import LoadedModel, check_model, predict_sdf
 from svr.nmr.format import NUM_VIEWS, check_split, is_nmr_shapenet
 from svr.nmr.metrics import voxel_iou, voxels_protocol
+from svr.nmr.side_views import side_view_iou, side_views
 
 
 def _protocol_voxels(values: np.ndarray, half_side: float) -> np.ndarray:
@@ -45,7 +46,7 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
                      max_objects_per_category: Optional[int] = None, num_workers: int = 0,
                      compare_coarse: bool = False, protocol_workers: int = 0, keep_voxels: bool = False,
                      progress: bool = True, distributed: bool = False,
-                     nmr_shapenet: Optional[bool] = None) -> EvaluationResult:
+                     nmr_shapenet: Optional[bool] = None, side_view_scores: bool = True) -> EvaluationResult:
     """Runs the benchmark protocol over the (object, view) images of a split's objects.
 
     Args:
@@ -71,6 +72,8 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
         nmr_shapenet: whether the data is real NMR ShapeNet (the paper's reference rows apply);
             None: as ``svr.nmr.format.is_nmr_shapenet`` tells from the folder (generated or built
             data is not).
+        side_view_scores: also score each prediction's silhouettes from the views 90 degrees either
+            side of its input view against their stored alpha (``svr.nmr.side_views``).
     Raises:
         TypeError naming ``model`` unless it is a LoadedModel; ValueError naming ``distributed``
         when it is True without an initialised process group, or the setting out of range.
@@ -91,7 +94,7 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
     loader = DataLoader(items, batch_size=batch_size, sampler=shard, num_workers=num_workers,
                         collate_fn=collate_batch, pin_memory=model.device.type == "cuda")
     start = time.perf_counter()
-    scores = _ImageScores(with_coarse, keep_voxels)
+    scores = _ImageScores(with_coarse, keep_voxels, objects if side_view_scores else None)
     with tqdm(total=len(shard), desc=f"evaluate {split}", unit="img", disable=not progress) as bar:
         _score_batches(model, loader, scores, protocol_workers, bar)
     gather = functools.partial(_gathered, world_size=ranks.world_size)
@@ -104,6 +107,7 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
         category=gather(scores.category, np.int64), object_index=gather(scores.object_index, np.int64),
         view=gather(scores.view, np.int64), iou=gather(scores.iou, np.float64),
         iou_coarse=gather(scores.iou_coarse, np.float64) if with_coarse else None,
+        side_iou=gather(scores.side_iou, np.float64) if side_view_scores else None,
         voxels=gather(scores.voxels, bool, (32, 32, 32)) if keep_voxels else None,
         views_per_object=len(items.views),
         full_protocol=len(items.views) == NUM_VIEWS and max_objects_per_category is None,
@@ -140,11 +144,22 @@ def _warn_if_other_categories(model: LoadedModel, categories: Sequence[tuple[str
 
 class _ImageScores:
     """Per-image results of this process, batch by batch, in the loader's order: category, object
-    and view of each image, the IoU of its predicted voxels (and of the coarse SDF's), the voxels."""
+    and view of each image, the IoU of its predicted voxels (and of the coarse SDF's), the voxels,
+    and with ``objects`` (the split's dataset) the side-view silhouette IoU of its prediction."""
 
-    def __init__(self, with_coarse: bool, keep_voxels: bool):
-        self.with_coarse, self.keep_voxels = with_coarse, keep_voxels
+    def __init__(self, with_coarse: bool, keep_voxels: bool, objects=None):
+        self.with_coarse, self.keep_voxels, self.objects = with_coarse, keep_voxels, objects
         self.category, self.object_index, self.view, self.iou, self.iou_coarse, self.voxels = [], [], [], [], [], []
+        self.side_iou = []
+
+    def score_sides(self, batch: SVRBatch, final: torch.Tensor, half_side: float) -> None:
+        """The side-view silhouette IoU of one batch's final SDF grids (B, N, N, N)."""
+        if self.objects is None:
+            return
+        sides = side_views(batch.view_ids[:, 0]).tolist()
+        alpha = np.stack([self.objects.images_uint8(int(self.objects.offsets[c]) + o, s)[:, 3] for c, o, s in
+                          zip(batch.category.tolist(), batch.object_index.tolist(), sides)])
+        self.side_iou.append(side_view_iou(final, half_side, batch.view_ids[:, 0], alpha).numpy())
 
     def add(self, batch: SVRBatch, voxels: np.ndarray) -> None:
         """One batch's (B, ...) items and its predicted voxels: (B, 32, 32, 32) bool, followed by the
@@ -178,6 +193,7 @@ def _score_batches(model: LoadedModel, loader: DataLoader, scores: _ImageScores,
     try:
         for batch in loader:
             pred = predict_sdf(model, batch.images[:, 0], batch_size=len(batch), views=batch.view_ids[:, 0])
+            scores.score_sides(batch, pred.final, model.half_side)
             grids = [pred.final] + ([pred.coarse] if scores.with_coarse else [])
             values = torch.cat(grids).detach().float().cpu().numpy()
             job = (pool.submit(_protocol_voxels, values, model.half_side) if pool is not None

@@ -48,6 +48,10 @@ PAPER_REFERENCE_ROWS: tuple[ReferenceRow, ...] = (
     ReferenceRow("SDFDiff (paper)", PAPER_SDFDIFF_MEAN_IOU, PAPER_SDFDIFF_IOU),
 )
 
+SIDE_VIEWS_DESCRIPTION = ("silhouette IoU of each prediction rendered from the two views 90 degrees either side "
+                          "of its input view against those views' stored alpha (both at 0.5), mean of the two; "
+                          "category = mean over its images, mean = unweighted mean over categories")
+
 
 
 @dataclass(frozen=True)
@@ -68,6 +72,8 @@ class EvaluationResult:
         category, object_index, view: (M,) int64.
         iou: (M,) float64 benchmark IoU of ``output``; iou_coarse: (M,) of the coarse SDF, or None.
         voxels: (M, 32, 32, 32) bool predicted voxels (NMR frame) of ``output``, if kept.
+        side_iou: (M,) float64 silhouette IoU of ``output`` seen from the views 90 degrees either side
+            of the input (``svr.nmr.side_views``), or None where not scored.
         baselines: baseline name (``svr.evaluation.baselines.BASELINES``) -> (M,) float64 IoU on the same images
             (``add_baselines``).
         views_per_object: views evaluated per object (24 for the protocol).
@@ -95,6 +101,7 @@ class EvaluationResult:
     seconds: float = 0.0
     baselines: Mapping[str, np.ndarray] = field(default_factory=dict)
     calibration: Optional[str] = None
+    side_iou: Optional[np.ndarray] = None
 
     @property
     def table(self) -> IoUTable:
@@ -104,6 +111,11 @@ class EvaluationResult:
     @property
     def coarse_table(self) -> Optional[IoUTable]:
         return iou_table(self.iou_coarse, self.category, self.categories) if self.iou_coarse is not None else None
+
+    @property
+    def side_table(self) -> Optional[IoUTable]:
+        """Per-category side-view silhouette IoU of ``output`` (None where not scored)."""
+        return iou_table(self.side_iou, self.category, self.categories) if self.side_iou is not None else None
 
     def baseline_table(self, name: str) -> IoUTable:
         """Per-category IoU of a baseline on the same images."""
@@ -157,6 +169,8 @@ class EvaluationResult:
                    "worst_view": int(self.view[worst])}
             if self.iou_coarse is not None:
                 row["iou_coarse_mean"] = float(self.iou_coarse[sel].mean())
+            if self.side_iou is not None:
+                row["side_iou_mean"] = float(self.side_iou[sel].mean())
             for name, values in self.baselines.items():
                 row[f"iou_{name}_mean"] = float(values[sel].mean())
             rows.append(row)
@@ -195,6 +209,9 @@ class EvaluationResult:
         coarse = self.coarse_table
         if coarse is not None:
             out["coarse"] = summary(coarse)
+        side = self.side_table
+        if side is not None:
+            out["side_views"] = {"description": SIDE_VIEWS_DESCRIPTION, **summary(side)}
         if self.baselines:
             out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
                                        **summary(self.baseline_table(name))} for name in self.baselines}
@@ -289,22 +306,33 @@ def table_notes(result: EvaluationResult) -> list[str]:
     return notes
 
 
-def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: Optional[str] = None) -> str:
-    """The markdown report: a title line, the table in the paper's layout (categories as columns,
-    mean last; reference rows for NMR ShapeNet), then the notes. Columns are padded for terminals.
-    ``extra_rows`` and ``label``: see ``table_rows``."""
-    header, rows = table_rows(result, extra_rows, label)
-    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
+def _markdown(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    """A markdown table's lines, columns padded for terminals (the first left-aligned, the rest right)."""
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
 
     def line(cells: Sequence[str]) -> str:
         return "| " + " | ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(cells, widths))) + " |"
 
     sep = "|" + "|".join(("-" * (w + 2)) if i == 0 else ("-" * (w + 1) + ":") for i, w in enumerate(widths)) + "|"
+    return [line(header), sep] + [line(r) for r in rows]
+
+
+def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: Optional[str] = None) -> str:
+    """The markdown report: a title line, the table in the paper's layout (categories as columns,
+    mean last; reference rows for NMR ShapeNet), then the notes, then (where scored) the side-view
+    silhouette IoU in the same layout. ``extra_rows`` and ``label``: see ``table_rows``."""
+    header, rows = table_rows(result, extra_rows, label)
     n_obj = len(np.unique(np.stack([result.category, result.object_index], 1), axis=0)) if len(result.iou) else 0
     title = (f"3D IoU, {result.dataset}, split '{result.split}': {n_obj} objects x {result.views_per_object} views "
              f"= {len(result.iou)} images; checkpoint {result.checkpoint or '(in memory)'} ({result.stage} stage)")
-    body = [line(header), sep] + [line(r) for r in rows]
-    return "\n".join([title, ""] + body + [""] + [f"- {n}" for n in table_notes(result)]) + "\n"
+    lines = [title, ""] + _markdown(header, rows) + [""] + [f"- {n}" for n in table_notes(result)]
+    side = result.side_table
+    if side is not None:
+        cols = result.present
+        side_row = ([label or f"ours ({result.output})"] + [format_iou(side.rows[c].iou) for c in cols]
+                    + [format_iou(side.mean)])
+        lines += ["", f"Side views: {SIDE_VIEWS_DESCRIPTION}.", ""] + _markdown(header, [side_row])
+    return "\n".join(lines) + "\n"
 
 
 def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: ExtraRows = None,
@@ -335,10 +363,12 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
         "json": write_json(folder / "iou.json", summary),
     }
     obj_columns = ["category_id", "category", "object_index", "views", "iou_mean", "iou_min", "worst_view"] + (
-        ["iou_coarse_mean"] if result.iou_coarse is not None else []) + [f"iou_{n}_mean" for n in result.baselines]
+        ["iou_coarse_mean"] if result.iou_coarse is not None else []) + (
+        ["side_iou_mean"] if result.side_iou is not None else []) + [f"iou_{n}_mean" for n in result.baselines]
     files["per_object"] = write_csv(folder / "per_object.csv", result.per_object(), obj_columns)
     img_columns = ["category_id", "category", "object_index", "view", "iou"] + (
-        ["iou_coarse"] if result.iou_coarse is not None else []) + [f"iou_{n}" for n in result.baselines]
+        ["iou_coarse"] if result.iou_coarse is not None else []) + (
+        ["side_iou"] if result.side_iou is not None else []) + [f"iou_{n}" for n in result.baselines]
     img_rows = []
     for i in range(len(result.iou)):
         cid, name = result.categories[int(result.category[i])]
@@ -346,6 +376,8 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
                "view": int(result.view[i]), "iou": float(result.iou[i])}
         if result.iou_coarse is not None:
             row["iou_coarse"] = float(result.iou_coarse[i])
+        if result.side_iou is not None:
+            row["side_iou"] = float(result.side_iou[i])
         for n, values in result.baselines.items():
             row[f"iou_{n}"] = float(values[i])
         img_rows.append(row)

@@ -59,6 +59,20 @@ def test_ladder_rows_means_and_reading():
     assert "does not yet measure" in reading(worse)
 
 
+def test_side_views_column_for_the_trained_rows():
+    shipped = _objects(1.0)
+    for (name, _), row, side in zip(shipped, shipped.values(), (0.2, 0.4, 0.9)):
+        row["side_iou_mean"] = side
+    summary = ladder({"shipped": shipped}, {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6},
+                     ["chair", "table"])
+    side = summary["rows"]["shipped"]["side_views"]
+    assert side["mean"] == pytest.approx((0.3 + 0.9) / 2)  # chair (0.2 + 0.4) / 2, table 0.9
+    assert side["interval"][0] <= side["mean"] <= side["interval"][1]
+    assert "side_views" not in summary["rows"]["retrieval"]  # baselines have no SDF to render
+    table = markdown_table(summary)
+    assert f"| {side['mean']:.3f} [" in table and table.count("|  |\n") == len(summary["rows"]) - 1
+
+
 def test_ladder_without_the_voxel_row_and_with_disjoint_data():
     summary = ladder({"shipped": _objects(1.0)}, {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6},
                      ["chair", "table"])
@@ -69,9 +83,9 @@ def test_ladder_without_the_voxel_row_and_with_disjoint_data():
 
 def test_read_per_object(tmp_path):
     path = tmp_path / "per_object.csv"
-    path.write_text("category_id,category,object_index,views,iou_mean,iou_oracle_mean\n"
-                    "03001627,chair,4,24,0.5,0.99\n")
-    assert read_per_object(path) == {("chair", 4): {"iou_mean": 0.5, "iou_oracle_mean": 0.99}}
+    path.write_text("category_id,category,object_index,views,iou_mean,side_iou_mean,iou_oracle_mean\n"
+                    "03001627,chair,4,24,0.5,0.4,0.99\n")
+    assert read_per_object(path) == {("chair", 4): {"iou_mean": 0.5, "side_iou_mean": 0.4, "iou_oracle_mean": 0.99}}
 
 
 def test_a_scored_row_is_reused_unless_rescore(tmp_path, monkeypatch):

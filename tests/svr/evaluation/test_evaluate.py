@@ -33,6 +33,7 @@ from svr.evaluation.tables import EvaluationResult, format_table, table_rows, wr
 from svr.inference.prediction import load_model, predict
 from svr.nmr.format import NMR_CATEGORIES, nmr_file
 from svr.nmr.metrics import iou_protocol, iou_table
+from svr.nmr.side_views import side_view_iou, side_views
 
 from ...entry_points import expect_usage_error, run_entry
 from ..data.test_data import CATS, write_fake_nmr
@@ -120,7 +121,11 @@ def test_main_prints_and_writes_the_table(tiny_run, tmp_path, capsys, monkeypatc
     with open(out / "table.csv") as f:
         rows = list(csv.reader(f))
     assert rows[0] == ["method", "chair", "mug", "mean"] and rows[1][0] == "ours (refined)"
-    assert (out / "table.md").read_text().count("| ours (") == 2
+    table_md = (out / "table.md").read_text()
+    assert table_md.count("| ours (") == 3 and "Side views: silhouette IoU" in table_md  # + the side-view table
+    side = summary["side_views"]
+    assert set(side["categories"]) == set(CATEGORIES) and 0.0 < side["mean"] <= 1.0
+    assert side["mean"] == pytest.approx(np.mean(list(side["categories"].values())))
     # Every baseline is a row, scored on the same images, and ours minus retrieval is shown.
     assert set(summary["baselines"]) == {"mean_shape", "category_mean_shape", "retrieval", "oracle"}
     for row in summary["baselines"].values():
@@ -135,6 +140,9 @@ def test_main_prints_and_writes_the_table(tiny_run, tmp_path, capsys, monkeypatc
     with open(out / "per_image.csv") as f:
         images = list(csv.DictReader(f))
     assert len(images) == 48 and sorted({int(r["view"]) for r in images}) == list(range(24))
+    assert np.mean([float(r["side_iou"]) for r in images if r["category"] == "chair"]) == pytest.approx(
+        side["categories"]["chair"])
+    assert "side_iou_mean" in objects[0]
     assert not list(out.glob(".*.tmp"))  # atomic writes leave no temporary files
 
 
@@ -151,7 +159,12 @@ def test_api_scores_every_view_by_the_protocol(tiny_run):
         grid = predict(model, image)
         expected = iou_protocol(grid.values, objects.voxels(obj)[None], -model.half_side, model.half_side)
         assert res.iou[i] == pytest.approx(float(expected[0]), abs=1e-9)
+        # From the views 90 degrees either side, against their stored alpha.
+        view = torch.tensor([int(res.view[i])])
+        alpha = objects.images_uint8(obj, side_views(view)[0].tolist())[:, 3]
+        assert res.side_iou[i] == pytest.approx(float(side_view_iou(grid.values, model.half_side, view, alpha[None])[0]))
     assert res.voxels.shape == (4, 32, 32, 32) and res.voxels.dtype == bool
+    assert evaluate(model, dm, "test", views=[3], progress=False, side_view_scores=False).side_iou is None
 
 
 def fake_result(category_ids: list[str], split: str = "test") -> EvaluationResult:
