@@ -1,5 +1,5 @@
 """Input images for inference, read like the datasets' and checked: RGBA (alpha = the object's
-silhouette), or RGB/grey with a mask file; folders and glob patterns expanded (``find_images``, which
+silhouette), or RGB/grey with a mask file or on a plain background (removed); folders and glob patterns expanded (``find_images``, which
 also says what it left out); a silhouette that cannot be an object on a background refused
 (``check_silhouette``).
 """
@@ -15,6 +15,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
+from svr.inference.framing import object_rgba
 from svr.nmr.format import images_to_float
 
 PathLike = Union[str, os.PathLike]
@@ -73,8 +74,10 @@ def _has_alpha(img) -> bool:
 def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int = 64) -> torch.Tensor:
     """Reads one input image for the network.
 
-    RGBA (or grey + alpha, or a palette with transparency) is used as is; RGB or grey needs a mask
-    file (any mode, read as grey: white = object), which replaces the alpha channel. A non-square
+    RGBA (or grey + alpha, or a palette with transparency) is used as is; for RGB or grey a mask
+    file (any mode, read as grey: white = object) replaces the alpha channel, and without one a plain
+    background is removed (``svr.inference.framing.background_mask``; refused where the border is
+    not one plain colour or nothing differs from it). A non-square
     image is padded to a square (transparent, white); any other size is resized to
     ``image_size`` (area averaging when shrinking), with a warning. The result is converted like the
     datasets' images (``svr.nmr.format.images_to_float``: RGB on white).
@@ -100,9 +103,8 @@ def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int 
         rgba.putalpha(m)
     elif _has_alpha(img):
         rgba = img.convert("RGBA")
-    else:
-        raise ValueError(f"{path}: the image has no alpha channel ({img.mode}); give an RGBA image or a mask "
-                         f"file (masks=[...], or <stem>_mask.png beside it)")
+    else:  # a photo on a plain background: the background removed (or a one-line refusal)
+        rgba = Image.fromarray(object_rgba(np.asarray(img.convert("RGB")), str(path)), "RGBA")
     check_silhouette(np.asarray(rgba.getchannel("A")), str(mask if mask is not None else path))
     w, h = rgba.size
     if (w, h) != (image_size, image_size):

@@ -114,6 +114,13 @@ def test_rgb_plus_mask_equals_rgba_and_other_sizes_are_resized(tiny_run, tmp_pat
     Image.fromarray(u8[3]).save(tmp_path / "b_mask.png")
     rgba = load_image(tmp_path / "a.png")
     assert torch.equal(rgba, load_image(tmp_path / "b.png", tmp_path / "b_mask.png"))
+    # Without the mask, the white background of the dataset's RGB is removed instead: the same
+    # silhouette but for edge pixels.
+    Image.fromarray(np.ascontiguousarray((rgba[:3] * 255).round().byte().numpy().transpose(1, 2, 0)), "RGB").save(
+        tmp_path / "plain.png")
+    removed = load_image(tmp_path / "plain.png")
+    inter = ((removed[3] >= 0.5) & (rgba[3] >= 0.5)).sum()
+    assert inter / ((removed[3] >= 0.5) | (rgba[3] >= 0.5)).sum() > 0.9
     big = Image.fromarray(np.ascontiguousarray(u8.transpose(1, 2, 0)), "RGBA").resize((128, 96))
     big.save(tmp_path / "big.png")
     with pytest.warns(UserWarning, match="resized to 64x64"):
@@ -124,7 +131,7 @@ def test_rgb_plus_mask_equals_rgba_and_other_sizes_are_resized(tiny_run, tmp_pat
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         report = infer_files(load_model(tiny_run.checkpoint, "cpu"), tmp_path, out, views=[], formats=["npz"])
-    assert len(report.done) == 3 and not report.failed and not (out / "b_mask_sdf.npz").exists()
+    assert len(report.done) == 4 and not report.failed and not (out / "b_mask_sdf.npz").exists()  # + plain.png
 
 
 def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch, capsys):
@@ -150,8 +157,8 @@ def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch, capsy
         load_image(bad)
     with pytest.raises(FileNotFoundError, match="nothere.png"):
         infer_files(model, [tmp_path / "nothere.png"], tmp_path / "o")
-    Image.new("RGB", (64, 64), "white").save(tmp_path / "rgb.png")
-    with pytest.raises(ValueError, match="rgb.png.*mask"):
+    Image.new("RGB", (64, 64), "white").save(tmp_path / "rgb.png")  # no mask, and nothing but background
+    with pytest.raises(ValueError, match="rgb.png: cannot tell the object from the background.*mask"):
         load_image(tmp_path / "rgb.png")
 
     blocker = tmp_path / "a_file"
