@@ -45,6 +45,8 @@ class DemoSettings(TrainSettings):
         calibrate: calibrate the checkpoints on the validation split and score them calibrated
             (false: score the network's raw output).
         recalibrate: search the calibrations again even where the checkpoints hold one.
+        calibrate_carving: let the calibration carve by the input silhouette's cone (which reads the
+            input camera); false: a level only, so that the scored predictions read only the image.
     """
 
     out: str
@@ -54,6 +56,7 @@ class DemoSettings(TrainSettings):
     quiet: bool
     calibrate: bool
     recalibrate: bool
+    calibrate_carving: bool
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -144,7 +147,7 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> De
     t_eval = time.time()
     scores = score_run(train_settings, folder, out_dir, progress=not settings.quiet,
                        protocol_workers=settings.protocol_workers, calibrate=settings.calibrate,
-                       recalibrate=settings.recalibrate)
+                       recalibrate=settings.recalibrate, carving=settings.calibrate_carving)
     steps = folder.steps(schedule, {s: train_settings.stage.of(s).max_steps for s in schedule})
     report = scores.write(out_dir, fields={"steps": steps})
     timings = {"train_seconds": folder.train_seconds(schedule), "train_wall_seconds_this_command": train_wall,

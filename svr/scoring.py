@@ -57,14 +57,20 @@ class RunScores:
                             fields={"calibration_search": self.calibrations, **(fields or {})})
 
 
-def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool = True, again: bool = False) -> dict:
+def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool = True, again: bool = False,
+                         carving: bool = True) -> dict:
     """The calibration record of the checkpoint at ``path``: the stored one, else (or with ``again``,
     replacing it) one searched on the data module's validation split and stored
-    (``svr.evaluation.calibration_search``)."""
+    (``svr.evaluation.calibration_search``). Without ``carving`` only the level is searched (the
+    carvings read the input camera), and a stored record that carves is searched again."""
     record = None if again else stored_calibration(path)
+    if record is not None and not carving and record["settings"].get("carve", "none") != "none":
+        print(f"{path} holds a calibration that carves; searching again without carving", flush=True)
+        record = None
     if record is None:
         datamodule.prepare_split("val", progress=progress)
-        search = search_calibration(load_model(path, "cpu"), datamodule.dataset("val"), progress=progress)
+        search = search_calibration(load_model(path, "cpu"), datamodule.dataset("val"), carving=carving,
+                                    progress=progress)
         store_calibration(path, search)
         record = search.record()
         print(f"calibrated {path} on the validation split in {search.seconds:.0f} s: {search.best.describe()} "
@@ -73,12 +79,14 @@ def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool =
 
 
 def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str = "test", progress: bool = True,
-              protocol_workers: int = 0, calibrate: bool = True, recalibrate: bool = False) -> RunScores:
+              protocol_workers: int = 0, calibrate: bool = True, recalibrate: bool = False,
+              carving: bool = True) -> RunScores:
     """Scores a finished run with the benchmark protocol: its last stage's checkpoint, its coarse
     stage's and every baseline (``svr.evaluation.baselines``) on the same images; draws
     ``predictions.png`` and ``meshes/`` into ``out_dir`` (the tables are ``RunScores.write``'s). With
     ``calibrate`` each checkpoint is calibrated first (``calibrate_checkpoint``; with
-    ``recalibrate`` searched again even where one is stored); without, none is applied."""
+    ``recalibrate`` searched again even where one is stored; without ``carving``, a level only);
+    without, none is applied."""
     dm = instantiate(settings.data)
     dm.prepare_data()
     schedule = list(settings.stage.schedule)
@@ -87,7 +95,7 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     if calibrate:
         for stage, path in ((schedule[-1], final_ckpt), (schedule[0], coarse_ckpt)):
             if stage not in calibrations:
-                calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate)
+                calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate, carving=carving)
 
     def load(path: Path):
         model = load_model(path, "cpu")

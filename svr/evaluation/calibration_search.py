@@ -3,8 +3,10 @@ stores it in the checkpoint: every combination of a carving (none, the input vie
 with the network's mirror axis also its mirror image; the exact cone unless ``carve_levels_voxels``
 says more) and a level of the network's surface (0 to 1.5 voxels of its grid, in quarter voxels)
 is scored by the benchmark protocol on the same predictions, and the best mean over categories of
-per-category mean IoU wins. It reads only the validation split's images, cameras and voxels, which
-NMR data holds; the test split is never seen."""
+per-category mean IoU wins. Both carvings project the grid into the input view with the dataset's
+camera (the mirror carving's cone is the input view's cone, mirrored), so ``carving=False`` keeps
+only the level: a calibration that reads nothing but the image. It reads only the validation
+split's images, cameras and voxels, which NMR data holds; the test split is never seen."""
 from __future__ import annotations
 
 import time
@@ -42,6 +44,7 @@ class CalibrationSearch:
             "iou"}``, iou the mean over categories of the per-category mean protocol IoU on the
             images searched.
         split, images, objects_per_category, views, seconds: what was searched and how long it took.
+        carving: whether the carvings (which read the input camera) were candidates.
     """
 
     best: Calibration
@@ -51,6 +54,7 @@ class CalibrationSearch:
     objects_per_category: Optional[int]
     views: tuple[int, ...]
     seconds: float
+    carving: bool = True
 
     @property
     def uncalibrated_iou(self) -> float:
@@ -64,6 +68,7 @@ class CalibrationSearch:
         """What ``store_calibration`` keeps in the checkpoint."""
         return {"settings": self.best.to_dict(), "split": self.split, "images": self.images,
                 "objects_per_category": self.objects_per_category, "views": list(self.views),
+                "carving": self.carving,
                 "uncalibrated_iou": self.uncalibrated_iou, "calibrated_iou": self.best_iou,
                 "candidates": [dict(r) for r in self.rows]}
 
@@ -78,7 +83,7 @@ def search_calibration(model: LoadedModel, objects, split: str = "val", views: S
                        max_objects_per_category: Optional[int] = 20, batch_size: int = 32,
                        levels_voxels: Sequence[float] = LEVELS_VOXELS,
                        carve_levels_voxels: Sequence[float] = CARVE_LEVELS_VOXELS,
-                       progress: bool = True) -> CalibrationSearch:
+                       carving: bool = True, progress: bool = True) -> CalibrationSearch:
     """Scores every candidate calibration on a split's images (``EvalViews``) and returns the best.
 
     Args:
@@ -88,6 +93,7 @@ def search_calibration(model: LoadedModel, objects, split: str = "val", views: S
         views, max_objects_per_category: which images (default: 4 views of at most 20 objects per category).
         levels_voxels: the levels tried, in voxels of the network's grid (>= 0).
         carve_levels_voxels: the carving cone's levels tried with each carving, in voxels.
+        carving: try the carvings (they read the input camera); False: only "none", at each level.
     """
     check_model(model)
     check_int(batch_size, "batch_size", minimum=1)
@@ -100,7 +106,9 @@ def search_calibration(model: LoadedModel, objects, split: str = "val", views: S
     hs, n = model.half_side, model.grid_resolution
     voxel = 2.0 * hs / (n - 1)
     axis = mirror_axis_of(model)
-    carves = [("none", None), ("view", None)] + ([("view+mirror", axis)] if axis is not None else [])
+    carves = [("none", None)]
+    if carving:
+        carves += [("view", None)] + ([("view+mirror", axis)] if axis is not None else [])
     candidates = [Calibration(carve=c, mirror_axis=a, level=round(lv * voxel, 6), carve_level=round(cv * voxel, 6))
                   for c, a in carves for cv in (carve_levels_voxels if c != "none" else (0.0,))
                   for lv in levels_voxels]
@@ -130,7 +138,7 @@ def search_calibration(model: LoadedModel, objects, split: str = "val", views: S
     best = max(range(len(rows)), key=lambda k: (rows[k]["iou"], -k))
     return CalibrationSearch(best=candidates[best], rows=tuple(rows), split=split, images=len(items),
                              objects_per_category=max_objects_per_category, views=tuple(int(v) for v in views),
-                             seconds=time.perf_counter() - start)
+                             seconds=time.perf_counter() - start, carving=bool(carving))
 
 
 def stored_calibration(path) -> Optional[dict]:
