@@ -114,10 +114,20 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
         seconds=time.perf_counter() - start,
         calibration=(model.calibration.describe() if model.calibration is not None
                      and not model.calibration.is_identity else None),
+        reads=model_reads(model),
     )
     if len(result.iou) != len(items):
         raise RuntimeError(f"gathered {len(result.iou)} per-image results for {len(items)} images")
     return result
+
+
+def model_reads(model: LoadedModel) -> str:
+    """What a model's scored predictions read besides the input image: "the input camera" (the NMR
+    view index) where its network has a pixel-aligned head or its calibration carves, else
+    "nothing"."""
+    why = (["its pixel-aligned head"] if model.net.needs_views else []) + (
+        ["its calibration's carving"] if model.calibration is not None and model.calibration.carve != "none" else [])
+    return f"the input camera ({' and '.join(why)})" if why else "nothing"
 
 
 def _scores_coarse(model: LoadedModel, compare_coarse: bool) -> bool:
@@ -270,4 +280,4 @@ def add_baselines(result: EvaluationResult, datamodule, names: Sequence[str], mo
     return dataclasses.replace(result, baselines={**result.baselines, **scores})
 
 
-__all__ = ["evaluate", "evaluate_objects", "add_baselines"]
+__all__ = ["evaluate", "evaluate_objects", "add_baselines", "model_reads"]

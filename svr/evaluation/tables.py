@@ -17,7 +17,7 @@ import numpy as np
 
 from sdfcommon.tooling.checks import check_instance
 from sdfcommon.tooling.outputs import ensure_output_dir, write_csv, write_json, write_text
-from svr.evaluation.baselines import DESCRIPTIONS, LABELS
+from svr.evaluation.baselines import DESCRIPTIONS, LABELS, READS
 from svr.nmr.format import NMR_CATEGORIES, NMR_CATEGORY_IDS, NUM_VIEWS
 from svr.nmr.metrics import PAPER_SDFDIFF_IOU, PAPER_SDFDIFF_MEAN_IOU, IoUTable, iou_table
 
@@ -81,6 +81,9 @@ class EvaluationResult:
         seconds: wall time.
         calibration: the model's calibration (``svr.inference.calibration.Calibration.describe``),
             None when its predictions were scored as the network made them.
+        reads: what the model's predictions read besides the input image
+            (``svr.evaluation.protocol.model_reads``: "nothing" or "the input camera (...)"), None
+            where not known.
     """
 
     split: str
@@ -102,6 +105,7 @@ class EvaluationResult:
     baselines: Mapping[str, np.ndarray] = field(default_factory=dict)
     calibration: Optional[str] = None
     side_iou: Optional[np.ndarray] = None
+    reads: Optional[str] = None
 
     @property
     def table(self) -> IoUTable:
@@ -197,6 +201,7 @@ class EvaluationResult:
             "views_per_object": self.views_per_object,
             "full_protocol": self.full_protocol,
             "calibration": self.calibration,
+            "reads": self.reads,
             "protocol": "marching cubes of each view's SDF -> NMR 32^3 voxelisation (dilated surface, "
                         "vertices, 6-connected fill) -> IoU per image; category = mean over its images; "
                         "mean = unweighted mean over categories",
@@ -214,7 +219,7 @@ class EvaluationResult:
             out["side_views"] = {"description": SIDE_VIEWS_DESCRIPTION, **summary(side)}
         if self.baselines:
             out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
-                                       **summary(self.baseline_table(name))} for name in self.baselines}
+                                       "reads": READS[name], **summary(self.baseline_table(name))} for name in self.baselines}
         minus = self.minus_retrieval()
         if minus is not None:
             out["ours_minus_retrieval"] = summary(minus)
@@ -288,6 +293,12 @@ def table_notes(result: EvaluationResult) -> list[str]:
     if result.baselines:
         notes.append("Baselines, scored on the same images by the same protocol: " + "; ".join(
             f"{LABELS[n]}: {DESCRIPTIONS[n]}" for n in result.baselines) + ".")
+    if result.reads is not None or result.baselines:
+        reads = ([f"ours: {result.reads}"] if result.reads is not None else []) + [
+            f"{LABELS[n]}: {READS[n]}" for n in result.baselines]
+        notes.append("What each row reads at test time besides the input image (the input camera: the NMR "
+                     "view the image was taken from; methods published on NMR ShapeNet read the image "
+                     "only): " + "; ".join(reads) + ".")
     if result.is_nmr_shapenet:
         per_category = float(np.mean(list(PAPER_SDFDIFF_IOU.values())))
         notes.append("Reference rows: the SDFDiff paper's table (NMR ShapeNet test split, SPEC sections 3 and 5). "
