@@ -71,6 +71,16 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     # recalibrate=true searches both checkpoints again (and stores the new choices)
     demo([*args, "recalibrate=true"])
     assert capsys.readouterr().out.count("on the validation split in") == 2
+    # calibrate_carving=false: the levels alone (the carvings read the input camera); the tiny network
+    # reads no camera either, so the scored predictions read only the image
+    demo([*args, "recalibrate=true", "calibrate_carving=false"])
+    capsys.readouterr()
+    summary = json.loads((out / "iou.json").read_text())
+    for stage in ("joint", "coarse"):
+        record = summary["calibration_search"][stage]
+        assert record["carving"] is False and {c["carve"] for c in record["candidates"]} == {"none"}
+    assert summary["reads"] == "nothing" and summary["baselines"]["retrieval_any_view"]["reads"] == "nothing"
+    assert "retrieval (any view): nothing" in (out / "table.md").read_text()
     with pytest.raises(ValueError, match="recalibrate=true needs calibrate=true"):
         demo([*args, "recalibrate=true", "calibrate=false"])
     stamp = final.stat().st_mtime_ns

@@ -2,7 +2,9 @@
 in the evaluation table."""
 from __future__ import annotations
 
+import dataclasses
 import json
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,9 +12,13 @@ import torch
 
 from svr.data.datasets import NMRDataset
 from svr.data.procedural.generator import dataset_shape
-from svr.evaluation.baselines import (BASELINES, category_mean_shapes, check_baselines, mean_shape, oracle_voxels,
-                                      protocol_voxels_of_voxels, retrieve, score_baselines)
+from svr.evaluation.baselines import (BASELINES, READS, category_mean_shapes, check_baselines, mean_shape,
+                                      oracle_voxels, protocol_voxels_of_voxels, retrieve, retrieve_any_view,
+                                      score_baselines)
+from svr.evaluation.protocol import model_reads
 from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report
+from svr.inference.calibration import Calibration
+from svr.inference.prediction import LoadedModel
 from svr.nmr.format import NMR_CATEGORIES, nmr_file, prepare_nmr
 from svr.nmr.metrics import voxel_iou
 
@@ -118,6 +124,89 @@ def test_retrieval_finds_an_identical_training_object(tmp_path):
     np.testing.assert_array_equal(retrieve(train, queries[:4], np.arange(4), chunk=1), 2)
 
 
+class SilhouetteBank:
+    """The part of NMRDataset the retrievals read: (N, 24, H, W) uint8 alpha."""
+
+    def __init__(self, alpha: np.ndarray):
+        self.alpha = alpha
+
+    def __len__(self) -> int:
+        return len(self.alpha)
+
+    def silhouettes(self, view: int) -> np.ndarray:
+        return self.alpha[:, view]
+
+
+def _random_alpha(rng, *shape) -> np.ndarray:
+    return ((rng.random((*shape, 64, 64)) < 0.4) * 255).astype(np.uint8)
+
+
+def test_retrieval_any_view_finds_a_copy_seen_from_another_view():
+    rng = np.random.default_rng(1)
+    bank = SilhouetteBank(_random_alpha(rng, 6, 24))
+    queries = np.stack([bank.alpha[4, 17], bank.alpha[2, 0], bank.alpha[5, 23]])
+    # The query of view 3 is training object 4's view 17: found without the camera; the camera-bound
+    # retrieval compares view 3 only, where object 4 looks like any other.
+    np.testing.assert_array_equal(retrieve_any_view(bank, queries), [4, 2, 5])
+    np.testing.assert_array_equal(retrieve_any_view(bank, queries, chunk=1), [4, 2, 5])
+    assert retrieve(bank, queries[:1], np.array([3]))[0] != 4 or np.array_equal(bank.alpha[4, 3], queries[0])
+
+
+def test_retrieval_any_view_matches_a_brute_force_search():
+    rng = np.random.default_rng(2)
+    # Smooth-ish silhouettes (discs of random centre and radius), so the scores spread out.
+    yx = np.stack(np.meshgrid(np.arange(64), np.arange(64), indexing="ij"), -1)
+    centres, radii = rng.uniform(16, 48, (7 * 24 + 5, 2)), rng.uniform(6, 20, 7 * 24 + 5)
+    discs = ((np.linalg.norm(yx[None] - centres[:, None, None], axis=-1) < radii[:, None, None]) * 255).astype(np.uint8)
+    bank, queries = SilhouetteBank(discs[:7 * 24].reshape(7, 24, 64, 64)), discs[7 * 24:]
+    f = lambda a: a.astype(np.float64).reshape(len(a), 32, 2, 32, 2).mean((2, 4)).reshape(len(a), -1) / 255.0
+    q, b = f(queries), f(bank.alpha.reshape(-1, 64, 64))
+    inter = q @ b.T
+    iou = inter / (q.sum(1)[:, None] + b.sum(1)[None] - inter)
+    expected = iou.reshape(len(q), 7, 24).max(2).argmax(1)
+    np.testing.assert_array_equal(retrieve_any_view(bank, queries, chunk=2), expected)
+
+
+def test_retrieval_any_view_ties_and_edges():
+    rng = np.random.default_rng(3)
+    alpha = _random_alpha(rng, 4, 24)
+    query = _random_alpha(rng, 1)[0]
+    alpha[3, 0] = query    # seen first (view 0) ...
+    alpha[1, 20] = query   # ... but a lower index with the same score wins
+    bank = SilhouetteBank(alpha)
+    assert retrieve_any_view(bank, query[None])[0] == 1
+    # An empty query scores 0 against everything: the lowest index.
+    assert retrieve_any_view(bank, np.zeros((1, 64, 64), np.uint8))[0] == 0
+    assert retrieve_any_view(bank, np.zeros((0, 64, 64), np.uint8)).shape == (0,)
+    with pytest.raises(ValueError, match="queries"):
+        retrieve_any_view(bank, query)
+    with pytest.raises(ValueError, match="non-empty"):
+        retrieve_any_view(SilhouetteBank(np.zeros((0, 24, 64, 64), np.uint8)), query[None])
+    with pytest.raises(ValueError, match="chunk"):
+        retrieve_any_view(bank, query[None], chunk=0)
+
+
+def test_retrieval_any_view_scores_rotated_copies_exactly(tmp_path):
+    ids = [NMR_CATEGORIES[0][0], NMR_CATEGORIES[4][0]]
+    arrays = _write_nmr_folder(tmp_path, {ids[0]: {"train": 3, "test": 1}, ids[1]: {"train": 2, "test": 1}})
+    # Test object 0 of the first category is training object 1 turned by 5 views (its view v is the
+    # training object's view v + 5), with the same voxels: the camera-free lookup finds it in every view.
+    images, voxels = arrays[(ids[0], "train")]
+    arrays[(ids[0], "test")][0][0] = np.roll(images[1], -5, axis=0)
+    arrays[(ids[0], "test")][1][0] = voxels[1]
+    _save(tmp_path, arrays)
+    prepare_nmr(tmp_path, categories=ids, splits=("train", "test"), progress=False)
+    train, test = NMRDataset(tmp_path, "train", categories=ids), NMRDataset(tmp_path, "test", categories=ids)
+    result = _result_over(test, range(0, 24, 3))
+    scores = score_baselines(["retrieval", "retrieval_any_view"], result, test, train, 0.6, 64, progress=False)
+    copy = result.category == 0
+    np.testing.assert_array_equal(scores["retrieval_any_view"][copy], 1.0)
+    # The camera-bound lookup compares each view with the original's same view, another random image:
+    # it finds the original only by chance.
+    assert scores["retrieval"][copy].mean() < 0.5
+    assert scores["retrieval_any_view"][~copy].max() < 0.5
+
+
 def test_oracle_and_baselines_on_procedural_data(tiny_procedural):
     """The oracle is the exact shape on the model's grid: at least 0.97 at 64^3 against the default
     (protocol) ground truth, lower on a coarser grid; every baseline gives one IoU per image."""
@@ -142,6 +231,8 @@ def test_oracle_and_baselines_on_procedural_data(tiny_procedural):
 
 def test_baseline_names_are_checked():
     assert check_baselines(None) == () and check_baselines(["retrieval", "retrieval"]) == ("retrieval",)
+    assert set(READS) == set(BASELINES) and READS["retrieval"] == "the input camera"
+    assert READS["retrieval_any_view"] == "nothing"
     with pytest.raises(ValueError, match="unknown baseline 'nearest'"):
         check_baselines(["nearest"])
     with pytest.raises(ValueError, match="string"):
@@ -174,6 +265,28 @@ def test_baselines_are_rows_of_the_table_with_ours_minus_retrieval(tmp_path):
     assert summary["baselines"]["retrieval"]["mean"] == pytest.approx(0.55)
     assert summary["ours_minus_retrieval"]["categories"]["bench"] == pytest.approx(-0.1)
     assert "iou_retrieval" in files["per_image"].read_text().splitlines()[0]
+
+
+def test_notes_say_what_each_row_reads(tmp_path):
+    res = dataclasses.replace(_fake(nmr=False), reads="nothing",
+                              baselines={**_fake(nmr=False).baselines,
+                                         "retrieval_any_view": np.array([0.4, 0.4, 0.5, 0.5])})
+    text = format_table(res)
+    note = next(line for line in text.splitlines() if line.startswith("- What each row reads"))
+    for part in ("ours: nothing", "mean shape: nothing", "retrieval: the input camera",
+                 "retrieval (any view): nothing"):
+        assert part in note, part
+    summary = json.loads(write_report(res, tmp_path)["json"].read_text())
+    assert summary["reads"] == "nothing"
+    assert summary["baselines"]["retrieval"]["reads"] == "the input camera"
+    assert summary["baselines"]["retrieval_any_view"]["reads"] == "nothing"
+    # What the model reads comes from its network and calibration.
+    net = SimpleNamespace(needs_views=False)
+    assert model_reads(LoadedModel(net)) == "nothing"
+    assert model_reads(LoadedModel(net, calibration=Calibration(level=0.01))) == "nothing"
+    assert model_reads(LoadedModel(net, calibration=Calibration(carve="view"))) == \
+        "the input camera (its calibration's carving)"
+    assert model_reads(LoadedModel(SimpleNamespace(needs_views=True))) == "the input camera (its pixel-aligned head)"
 
 
 def test_nmr_tables_give_both_sdfdiff_means():

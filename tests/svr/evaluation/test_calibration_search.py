@@ -62,6 +62,37 @@ def test_search_finds_the_level_that_undoes_an_overfill(monkeypatch):
     assert [r["level_voxels"] for r in search.rows[:3]] == [0.0, 0.25, 0.5]
     # no carving, then the carving with the exact cone; the level moves the network's surface only
     assert [(r["carve"], r["carve_level_voxels"]) for r in search.rows[::7]] == [("none", 0.0), ("view", 0.0)]
+    assert search.record()["carving"] is True
+    # carving=False (the carvings read the input camera): the levels alone, the same best
+    level_only = search_calibration(model, _Spheres(2, gt), views=(0, 7), carving=False, progress=False)
+    assert {r["carve"] for r in level_only.rows} == {"none"} and len(level_only.rows) == 7
+    assert level_only.best == search.best and level_only.record()["carving"] is False
+
+
+def test_search_without_carving_never_carves(monkeypatch):
+    """Where carving would win (the prediction fills the box, the silhouette does not), carving=False
+    still chooses no carving."""
+    n, hs = 32, 0.6
+    truth = _sphere(n, hs, 0.3)
+    gt = voxels_protocol(truth, -hs, hs)[0]
+    model = LoadedModel(SimpleNamespace(half_side=hs, decoder=SimpleNamespace(grid_resolution=n), local=None))
+
+    class _Disc(_Spheres):
+        def views(self, obj: int, views):
+            img = torch.ones(len(views), 4, 64, 64)
+            yx = torch.stack(torch.meshgrid(torch.arange(64.0), torch.arange(64.0), indexing="ij"), -1)
+            img[:, 3] = ((yx - 31.5).norm(dim=-1) < 12).float()
+            return img
+
+    def full(m, images, batch_size, views=None, clip=True, calibrated=True):
+        sdf = torch.full((len(images), n, n, n), -0.1)
+        return SVRPrediction(coarse=sdf, refined=sdf)
+
+    monkeypatch.setattr(search_module, "predict_sdf", full)
+    carved = search_calibration(model, _Disc(1, gt), views=(0,), levels_voxels=(0.0,), progress=False)
+    assert carved.best.carve == "view"
+    plain = search_calibration(model, _Disc(1, gt), views=(0,), levels_voxels=(0.0,), carving=False, progress=False)
+    assert plain.best.carve == "none" and len(plain.rows) == 1
 
 
 def test_stored_calibration_travels_with_the_checkpoint(tmp_path):
