@@ -3,8 +3,11 @@ rows scored on the same test images by the benchmark protocol, per category and 
 categories, each with a 95% bootstrap interval over test objects: the ground-truth oracle (the voxel
 protocol's ceiling), the network trained with 3D supervision (``loss=voxels``: the training voxels
 instead of images, a diagnostic of what the architecture can read from one image, not the method),
-the shipped recipe (image losses only, as the paper), silhouette retrieval, the lookup ceiling (best
-training object's voxels), the category mean shape and the mean shape. Each trained row is
+the shipped recipe (image losses only, as the paper), the camera-free network (``model=small``, a
+calibration without carving: it reads only the input image, as the methods published on NMR
+ShapeNet, where the shipped recipe also reads the input camera), silhouette retrieval in the input's
+view and in any view (camera-free), the lookup ceiling (best training object's voxels), the category
+mean shape and the mean shape. Each trained row is
 ``python -m svr.demo`` with the preset's experiment into ``<work>/<row>`` (a stopped ladder resumes its
 runs; a row whose folder holds a finished run's scores is reused, ``--rescore`` scores it again);
 ``--set`` passes hydra overrides to every trained row.
@@ -32,16 +35,35 @@ from svr.inference.calibration import Calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = {"demo": "demo", "bench": "bench"}  # configs/experiment/<name>.yaml of each preset
-TRAINED = {"shipped": (), "voxels": ("loss=voxels",)}  # row -> the overrides of its training run
-# Row key -> (label, source): a trained run's per_object.csv column, or the lookup ceiling.
+# Row -> the overrides of its training run. camera_free: the image-only network (no pixel-aligned
+# head, which projects into the input camera) and a level-only calibration (the carvings project
+# into the input camera too).
+TRAINED = {"shipped": (), "voxels": ("loss=voxels",), "camera_free": ("model=small", "calibrate_carving=false")}
+# Row key -> (label, source): a trained run's per_object.csv column, or the lookup ceiling. A
+# baseline's column (every one but iou_mean) is the same on every run of the same data, so where the
+# named run lacks it (scored before the baseline existed) another run's is read.
 ROWS = {
     "oracle": ("ground-truth oracle", ("shipped", "iou_oracle_mean")),
     "voxels": ("3D-supervised network (diagnostic)", ("voxels", "iou_mean")),
     "shipped": ("shipped recipe (images only)", ("shipped", "iou_mean")),
+    "camera_free": ("camera-free network (image only)", ("camera_free", "iou_mean")),
     "lookup": ("lookup ceiling", None),
     "retrieval": ("silhouette retrieval", ("shipped", "iou_retrieval_mean")),
+    "retrieval_any_view": ("silhouette retrieval, any view", ("shipped", "iou_retrieval_any_view_mean")),
     "category_mean_shape": ("category mean shape", ("shipped", "iou_category_mean_shape_mean")),
     "mean_shape": ("mean shape", ("shipped", "iou_mean_shape_mean")),
+}
+# What each row reads at test time besides the input image (the input camera: its NMR view).
+READS = {
+    "oracle": "the exact shape",
+    "voxels": "the input camera (as the shipped recipe)",
+    "shipped": "the input camera (the pixel-aligned head, the calibration's carving)",
+    "camera_free": "nothing",
+    "lookup": "the test object's voxels",
+    "retrieval": "the input camera",
+    "retrieval_any_view": "nothing",
+    "category_mean_shape": "the category",
+    "mean_shape": "nothing",
 }
 
 
@@ -118,10 +140,11 @@ def ladder(objects: dict[str, dict[tuple[str, int], dict[str, float]]], lookup: 
     for key, (label, source) in ROWS.items():
         if source is None:
             values = np.array([lookup[k] for k in keys])
-        elif source[0] not in objects or source[1] not in objects[source[0]][keys[0]]:
-            continue
         else:
-            values = np.array([objects[source[0]][k][source[1]] for k in keys])
+            run = _source_run(objects, source, keys[0])
+            if run is None:
+                continue
+            values = np.array([objects[run][k][source[1]] for k in keys])
         per_cat, overall = bootstrap_means(values, cat)
         table = {name: {"iou": float(values[cat == c].mean()), "interval": per_cat[c], "objects": int((cat == c).sum())}
                  for c, name in enumerate(categories) if c in per_cat}
@@ -133,6 +156,24 @@ def ladder(objects: dict[str, dict[tuple[str, int], dict[str, float]]], lookup: 
             rows[key]["side_views"] = {"mean": float(np.mean([side[cat == c].mean() for c in np.unique(cat)])),
                                        "interval": side_interval}
     return {"rows": rows, "objects": len(keys)}
+
+
+def _source_run(objects: dict, source: tuple[str, str], key) -> Optional[str]:
+    """The trained run to read a row's column from: the named one, else for a baseline's column any
+    run that scored it (None: none did)."""
+    run, column = source
+    if run in objects and column in objects[run][key]:
+        return run
+    if column == "iou_mean":  # a network's own score: only its run has it
+        return None
+    return next((r for r in objects if column in objects[r][key]), None)
+
+
+def reads_note(summary: dict) -> str:
+    """What each measured row reads at test time besides the input image, as one line."""
+    return ("What each row reads at test time besides the input image (methods published on NMR ShapeNet "
+            "read the image only): " + "; ".join(f"{r['label']}: {READS[k]}" for k, r in summary["rows"].items())
+            + ".\n")
 
 
 def markdown_table(summary: dict) -> str:
@@ -156,7 +197,9 @@ def reading(summary: dict) -> str:
     pairs = (("oracle", "voxels", "what one image and this network cannot recover, even with 3D targets"),
              ("voxels", "shipped", "what training from images alone loses against 3D targets"),
              ("shipped", "retrieval", "the network's margin over a silhouette lookup (negative: lookup wins)"),
-             ("shipped", "category_mean_shape", "the network's margin over knowing only the category"))
+             ("shipped", "category_mean_shape", "the network's margin over knowing only the category"),
+             ("shipped", "camera_free", "what reading the input camera (pixel-aligned head, carving) adds"),
+             ("camera_free", "retrieval_any_view", "the image-only network's margin over a camera-free lookup"))
     for a, b, what in pairs:
         if a in m and b in m:
             out.append(f"- {summary['rows'][a]['label']} - {summary['rows'][b]['label']}: "
@@ -201,8 +244,9 @@ def plot(summary: dict, path: Path) -> None:
 
 EXAMPLES = """\
 examples:
-  python -m benchmarks.accuracy_ladder                          # demo preset: two demo trainings
+  python -m benchmarks.accuracy_ladder                          # demo preset: three demo trainings
   python -m benchmarks.accuracy_ladder --rows shipped            # only the shipped recipe's run
+  python -m benchmarks.accuracy_ladder --rows shipped camera_free  # the shipped and the camera-free runs
   python -m benchmarks.accuracy_ladder --preset bench --set stage.coarse.max_time=00:01:00:00
 """
 
@@ -240,6 +284,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     trained = ", ".join(f"{row} {timings[row]['train_seconds'] / 60:.1f} min" for row in args.rows
                         if timings[row].get("train_seconds") is not None)
     stem = args.out or ROOT / "docs" / f"accuracy_ladder_{args.preset}"
+    camera_free = (" (+ `model=small calibrate_carving=false` for the camera-free one)"
+                   if "camera_free" in args.rows else "")
     text = (f"# Accuracy ladder: where single-view accuracy is lost ({args.preset} preset)\n\n"
             f"Command: `{command.strip()}` ({seconds / 60:.1f} min this time; training: {trained}).\n\n"
             f"{machine_info()}\n\nTest split, {summary['objects']} objects, all 24 views each, scored by the "
@@ -247,13 +293,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             f"category). Side views: the trained rows' silhouette IoU from the views 90 degrees either side of the "
             f"input (`svr.nmr.side_views`; mean over categories, interval as above). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}`"
             f"{' (+ `loss=voxels` for the 3D-supervised one)' if 'voxels' in args.rows else ''}"
+            f"{camera_free}"
             f"{' with ' + ' '.join(args.overrides) if args.overrides else ''}."
-            f"{'' if 'voxels' in args.rows else ' The 3D-supervised row was not run (`--rows shipped`).'}"
+            f"{'' if 'voxels' in args.rows else ' The 3D-supervised row was not run (not in `--rows`).'}"
             f"{' Scores reused from an earlier scoring of their run: ' + ', '.join(reused) + '.' if reused else ''}"
             f" Calibration of each trained row's scored checkpoint (chosen on the validation split, "
             f"docs/svr_evaluation.md#calibration): "
             f"{'; '.join(f'{row}: {text}' for row, text in calibrations.items())}."
-            f"\n\n{markdown_table(summary)}\n## Reading\n\n{reading(summary)}\n![ladder]({stem.name}.png)\n")
+            f"\n\n{markdown_table(summary)}\n{reads_note(summary)}\n## Reading\n\n{reading(summary)}\n"
+            f"![ladder]({stem.name}.png)\n")
     print(text)
     atomic_write_text(stem.with_suffix(".md"), text)
     atomic_write_text(stem.with_suffix(".json"), json.dumps({**summary, "seconds": seconds, "timings": timings,

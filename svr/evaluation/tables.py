@@ -219,7 +219,8 @@ class EvaluationResult:
             out["side_views"] = {"description": SIDE_VIEWS_DESCRIPTION, **summary(side)}
         if self.baselines:
             out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
-                                       "reads": READS[name], **summary(self.baseline_table(name))} for name in self.baselines}
+                                       "reads": READS[name], **summary(self.baseline_table(name))}
+                                for name in self.baselines}
         minus = self.minus_retrieval()
         if minus is not None:
             out["ours_minus_retrieval"] = summary(minus)

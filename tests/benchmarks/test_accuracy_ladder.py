@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmarks.accuracy_ladder import ROWS, calibration_of, ladder, markdown_table, read_per_object, reading
+from benchmarks.accuracy_ladder import (READS, ROWS, TRAINED, calibration_of, ladder, markdown_table, read_per_object,
+                                       reading, reads_note)
 from benchmarks.common import bootstrap_means
 
 
@@ -41,7 +42,8 @@ def test_ladder_rows_means_and_reading():
     lookup = {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6, ("table", 9): 0.1}  # table 9: not scored
     summary = ladder({"shipped": _objects(1.0), "voxels": _objects(1.2)}, lookup, ["chair", "table"])
     rows = summary["rows"]
-    assert list(rows) == list(ROWS) and summary["objects"] == 3
+    # every row but those of the runs and baselines not scored here (camera-free)
+    assert list(rows) == [k for k in ROWS if k not in ("camera_free", "retrieval_any_view")] and summary["objects"] == 3
     # shipped: chair objects 0.25 and 0.5 -> 0.375; table 0.75; mean over categories 0.5625
     assert rows["shipped"]["categories"]["chair"]["iou"] == pytest.approx(0.375)
     assert rows["shipped"]["mean"] == pytest.approx(0.5625)
@@ -71,6 +73,30 @@ def test_side_views_column_for_the_trained_rows():
     assert "side_views" not in summary["rows"]["retrieval"]  # baselines have no SDF to render
     table = markdown_table(summary)
     assert f"| {side['mean']:.3f} [" in table and table.count("|  |\n") == len(summary["rows"]) - 1
+
+
+def test_camera_free_rows():
+    assert set(READS) == set(ROWS) and "model=small" in TRAINED["camera_free"]
+    assert "calibrate_carving=false" in TRAINED["camera_free"]
+    lookup = {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6}
+    shipped, camera_free = _objects(1.0), _objects(0.8)
+    for row in camera_free.values():
+        row["iou_retrieval_any_view_mean"] = 0.4
+    # The shipped run was scored before the camera-free baseline existed: its column comes from the
+    # camera-free run; a network's own score never comes from another run.
+    summary = ladder({"shipped": shipped, "camera_free": camera_free}, lookup, ["chair", "table"])
+    rows = summary["rows"]
+    assert list(rows) == [k for k in ROWS if k != "voxels"]
+    assert rows["camera_free"]["mean"] == pytest.approx(0.8 * 0.5625)
+    assert rows["retrieval_any_view"]["mean"] == pytest.approx(0.4)
+    text = reading(summary)
+    assert f"**{0.5625 - 0.8 * 0.5625:+.3f}**: what reading the input camera" in text
+    assert f"**{0.8 * 0.5625 - 0.4:+.3f}**: the image-only network's margin" in text
+    note = reads_note(summary)
+    assert "camera-free network (image only): nothing" in note and "silhouette retrieval: the input camera" in note
+    assert "silhouette retrieval, any view: nothing" in note
+    only_shipped = ladder({"shipped": shipped}, lookup, ["chair", "table"])["rows"]
+    assert "camera_free" not in only_shipped and "retrieval_any_view" not in only_shipped
 
 
 def test_ladder_without_the_voxel_row_and_with_disjoint_data():

@@ -41,7 +41,8 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     summary = json.loads((out / "iou.json").read_text())
     assert summary["split"] == "test" and set(summary["categories"]) == {"chair", "mug"}
     assert set(summary["extra"]) == {"coarse stage alone"}
-    assert set(summary["baselines"]) == {"mean_shape", "category_mean_shape", "retrieval", "retrieval_any_view", "oracle"}
+    assert set(summary["baselines"]) == {"mean_shape", "category_mean_shape", "retrieval", "retrieval_any_view",
+                                        "oracle"}
     for name, row in [*summary["extra"].items(), *summary["baselines"].items()]:
         assert set(row["categories"]) == {"chair", "mug"} and 0.0 <= row["mean"] <= 1.0, name
     assert summary["num_images"] == 2 * 24 and summary["full_protocol"]

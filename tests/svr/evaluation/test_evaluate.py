@@ -127,7 +127,8 @@ def test_main_prints_and_writes_the_table(tiny_run, tmp_path, capsys, monkeypatc
     assert set(side["categories"]) == set(CATEGORIES) and 0.0 < side["mean"] <= 1.0
     assert side["mean"] == pytest.approx(np.mean(list(side["categories"].values())))
     # Every baseline is a row, scored on the same images, and ours minus retrieval is shown.
-    assert set(summary["baselines"]) == {"mean_shape", "category_mean_shape", "retrieval", "retrieval_any_view", "oracle"}
+    assert set(summary["baselines"]) == {"mean_shape", "category_mean_shape", "retrieval", "retrieval_any_view",
+                                        "oracle"}
     for row in summary["baselines"].values():
         assert set(row["categories"]) == set(CATEGORIES)
     minus = summary["ours_minus_retrieval"]["mean"]
