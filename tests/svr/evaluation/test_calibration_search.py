@@ -118,3 +118,29 @@ def _tiny_config() -> dict:
         "refiner": {"_target_": "svr.models.SDFRefiner", "channels": [4, 8], "grid_resolution": 16,
                     "input_stride": 2},
     }
+
+
+def test_a_stored_carving_is_searched_again_without_carving(monkeypatch, tmp_path):
+    """svr.scoring.calibrate_checkpoint: a stored record is kept unless it carves where carving is
+    not allowed; then the levels alone are searched and stored."""
+    import svr.scoring as scoring
+
+    stored = {"settings": Calibration(carve="view", level=0.01).to_dict(), "split": "val"}
+    searched = []
+
+    def search(model, objects, carving=True, progress=True):
+        searched.append(carving)
+        return SimpleNamespace(record=lambda: {"settings": Calibration(level=0.02).to_dict(), "carving": carving},
+                               seconds=0.0, best=Calibration(level=0.02), uncalibrated_iou=0.4, best_iou=0.5)
+
+    monkeypatch.setattr(scoring, "stored_calibration", lambda path: stored)
+    monkeypatch.setattr(scoring, "search_calibration", search)
+    monkeypatch.setattr(scoring, "store_calibration", lambda path, s: path)
+    monkeypatch.setattr(scoring, "load_model", lambda path, device: None)
+    dm = SimpleNamespace(prepare_split=lambda split, progress=True: None, dataset=lambda split: None)
+    assert scoring.calibrate_checkpoint(tmp_path / "x.ckpt", dm, progress=False) is stored and searched == []
+    record = scoring.calibrate_checkpoint(tmp_path / "x.ckpt", dm, progress=False, carving=False)
+    assert searched == [False] and record["settings"]["carve"] == "none"
+    stored["settings"] = Calibration(level=0.03).to_dict()  # a level only: kept
+    assert scoring.calibrate_checkpoint(tmp_path / "x.ckpt", dm, progress=False, carving=False) is stored
+    assert searched == [False]
