@@ -30,7 +30,7 @@ from svr.nmr.views import render_views
 from svr.nmr.voxels import sdf_at_voxel_centres
 
 SILHOUETTE_KINDS = ("mse", "iou")
-VOXEL_KINDS = ("distance", "bce")
+VOXEL_KINDS = ("iou", "distance", "bce")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -178,7 +178,7 @@ def voxel_distances(voxels: torch.Tensor, truncation: float = 3.0) -> torch.Tens
     return torch.from_numpy(np.clip(out, -truncation, truncation)).to(voxels.device)
 
 
-def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, kind: str = "distance",
+def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, kind: str = "iou",
                level: float = PROTOCOL_LIKE_LEVEL, softness: float = 0.5 / 31, truncation: float = 3.0) -> torch.Tensor:
     """3D supervision by the dataset's voxels, from the predicted SDF at the NMR voxel centres
     shifted by ``level`` (the offset at which an SDF's direct voxels best match the benchmark
@@ -187,13 +187,20 @@ def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, kind: 
     Args:
         sdf: (B, N, N, N) predicted SDF over ``[-half_side, half_side]^3``.
         voxels: (B, R, R, R) bool solid voxels in the NMR frame.
-        kind: "distance": the mean absolute difference, in voxels, between the truncated shifted
-            SDF and ``voxel_distances`` of the voxels; "bce": binary cross-entropy of the occupancy
-            ``sigmoid((level - sdf) / softness)`` against the voxels.
+        kind: with the occupancy ``sigmoid((level - sdf) / softness)`` at the centres: "iou":
+            ``1 - soft IoU`` of it with the voxels per object, averaged over the objects (each
+            object counts alike whatever its volume, as the benchmark's per-image IoU does: the
+            3D counterpart of the silhouette loss's "iou"); "bce": its binary cross-entropy
+            against the voxels, the mean over voxels. "distance": the mean absolute difference, in
+            voxels, between the shifted SDF and ``voxel_distances`` of the voxels, where a
+            prediction past the truncation on the target's own side costs nothing but one on the
+            other side keeps its gradient (clamping both sides would leave a wrong prediction
+            more than ``truncation`` deep, e.g. the inside of the initial sphere where the object
+            is thin, with no gradient at all).
         level, softness: world units (default: 0.55 and 0.5 of the voxel, 1 / (R - 1)).
         truncation: in voxels ("distance").
     Returns:
-        scalar tensor, the mean over voxels.
+        scalar tensor.
     """
     r = check_shape(voxels, "voxels", "B, R, R, R")["R"]
     check_positive(softness, "softness")
@@ -202,10 +209,20 @@ def voxel_loss(sdf: torch.Tensor, half_side: float, voxels: torch.Tensor, kind: 
     if kind not in VOXEL_KINDS:
         raise ValueError(f"kind must be one of {VOXEL_KINDS}, got {kind!r}")
     at, _ = sdf_at_voxel_centres(sdf, -half_side, half_side, r)
+    target = voxels.to(at.dtype)
     if kind == "bce":
-        return F.binary_cross_entropy_with_logits((level - at) / softness, voxels.to(at.dtype))
-    pred = ((at - level) * (r - 1)).clamp(-truncation, truncation)
-    return (pred - voxel_distances(voxels, truncation).to(at.dtype)).abs().mean()
+        return F.binary_cross_entropy_with_logits((level - at) / softness, target)
+    if kind == "iou":
+        occ = torch.sigmoid((level - at) / softness).flatten(1)
+        t = target.flatten(1)
+        inter = (occ * t).sum(1)
+        union = (occ + t - occ * t).sum(1)
+        return (1.0 - inter / union.clamp(min=1e-6)).mean()
+    t = voxel_distances(voxels, truncation).to(at.dtype)
+    pred = (at - level) * (r - 1)
+    pred = torch.where(t >= truncation, pred.clamp(max=truncation),
+                       torch.where(t <= -truncation, pred.clamp(min=-truncation), pred))
+    return (pred - t).abs().mean()
 
 
 # ------------------------------------------------------------------------------------------------
@@ -234,7 +251,7 @@ class LossWeights:
     laplacian: float = 0.02
     band_mu: float = 1.6
     silhouette_kind: str = "mse"
-    voxel_kind: str = "distance"
+    voxel_kind: str = "iou"
 
     def __post_init__(self) -> None:
         for name in ("silhouette", "shading", "voxel", "eikonal", "laplacian"):

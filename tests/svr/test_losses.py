@@ -11,6 +11,7 @@ import math
 from svr.losses import (LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss,
                         voxel_distances, voxel_loss)
 from svr.nmr.views import render_views
+from svr.nmr.metrics import iou_direct
 from svr.nmr.voxels import nmr_voxel_centres
 
 
@@ -113,10 +114,45 @@ def test_voxel_distances_hand_computed():
     # the distance loss of a constant SDF is the mean gap to these targets, in voxels
     sdf = torch.zeros(2, 8, 8, 8)
     expected = (d - 0.0).abs().mean().item()
-    assert voxel_loss(sdf, 0.6, vox, level=0.0, truncation=2.0).item() == pytest.approx(expected, rel=1e-5)
+    assert voxel_loss(sdf, 0.6, vox, "distance", level=0.0, truncation=2.0).item() == pytest.approx(expected, rel=1e-5)
 
 
-@pytest.mark.parametrize("kind", ["distance", "bce"])
+def test_voxel_distance_gradient_reaches_a_prediction_deep_on_the_wrong_side():
+    # A predicted sphere of radius 0.4 against the voxels of one of radius 0.1: the centres between
+    # the two lie up to 9 voxels inside the prediction but outside the object (target +truncation).
+    # d loss / d SDF at a centre is (R - 1) sign(pred - target) / R^3 (0 where the prediction is past
+    # the truncation on the target's side), and the trilinear weights of a centre sum to 1, so the
+    # grid's gradient sums to (R - 1) / R^3 times the sum of those signs: -1 at every wrong centre.
+    r, level, trunc = 32, 0.0, 3.0
+    vox = (nmr_voxel_centres(r).norm(dim=-1) < 0.1)[None]
+    sdf = _sphere(n=64, r=0.4, batch=1).double().requires_grad_(True)
+    voxel_loss(sdf, 0.6, vox, "distance", level=level, truncation=trunc).backward()
+    at = (nmr_voxel_centres(r, dtype=torch.float64).norm(dim=-1) - 0.4)[None]  # the sphere's exact SDF
+    pred = at * (r - 1)
+    t = voxel_distances(vox, trunc).double()
+    sign = torch.sign(pred - t)
+    sign[(t >= trunc) & (pred >= trunc)] = 0.0
+    sign[(t <= -trunc) & (pred <= -trunc)] = 0.0
+    deep = ((t >= trunc) & (pred < -trunc)).sum().item()
+    assert deep > 1000  # the case clamping both sides left without gradient
+    assert sdf.grad.sum().item() == pytest.approx((r - 1) / r ** 3 * sign.sum().item(), rel=1e-3)
+    assert sdf.grad.sum().item() < 0  # descent raises the SDF: the sphere shrinks toward the object
+
+
+def test_voxel_iou_loss_is_one_minus_iou_per_object_and_counts_objects_alike():
+    # With a sharp occupancy the "iou" loss is 1 - the direct IoU at the level, averaged over
+    # objects: a small object predicted empty costs 1 whatever its size, a right one 0.
+    centres = nmr_voxel_centres(32).norm(dim=-1)
+    vox = torch.stack([centres < 0.1, centres < 0.45])
+    sdf = torch.stack([_sphere(n=64, r=0.3, batch=1)[0] * 0 + 1.0, _sphere(n=64, r=0.45, batch=1)[0]]).double()
+    level = 0.0
+    expected = 1.0 - iou_direct(sdf, vox, -0.6, 0.6, level=level).mean().item()
+    got = voxel_loss(sdf, 0.6, vox, "iou", level=level, softness=1e-6).item()
+    assert got == pytest.approx(expected, abs=1e-3)
+    assert got == pytest.approx(0.5, abs=0.01)
+
+
+@pytest.mark.parametrize("kind", ["iou", "distance", "bce"])
 def test_voxel_loss_prefers_the_right_shape_and_its_gradient_grows_a_small_one(kind):
     # Voxels of a sphere of radius 0.3 (centres inside it): the exact SDF scores lower than a
     # smaller or larger sphere, and on the smaller one gradient descent lowers the SDF (grows it).
