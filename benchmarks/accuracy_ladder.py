@@ -45,7 +45,7 @@ TRAINED = {"shipped": (), "voxels": ("loss=voxels",), "camera_free": ("model=sma
 ROWS = {
     "oracle": ("ground-truth oracle", ("shipped", "iou_oracle_mean")),
     "voxels": ("3D-supervised network (diagnostic)", ("voxels", "iou_mean")),
-    "shipped": ("shipped recipe (images only)", ("shipped", "iou_mean")),
+    "shipped": ("shipped recipe (image losses, reads the camera)", ("shipped", "iou_mean")),
     "camera_free": ("camera-free network (image only)", ("camera_free", "iou_mean")),
     "lookup": ("lookup ceiling", None),
     "retrieval": ("silhouette retrieval", ("shipped", "iou_retrieval_mean")),

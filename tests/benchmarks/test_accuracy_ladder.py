@@ -52,7 +52,7 @@ def test_ladder_rows_means_and_reading():
     lo, hi = rows["shipped"]["interval"]
     assert lo <= rows["shipped"]["mean"] <= hi
     table = markdown_table(summary)
-    assert "| shipped recipe (images only) | 0.375 | 0.750 | **0.562**" in table
+    assert "| shipped recipe (image losses, reads the camera) | 0.375 | 0.750 | **0.562**" in table
     text = reading(summary)
     assert "**+0.062**" in text  # shipped 0.5625 - retrieval 0.5
     assert "below the category mean shape: none" in text
