@@ -107,7 +107,8 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     coarse_model = load(coarse_ckpt)
     extra = {}
     if coarse_ckpt != final_ckpt:
-        extra["coarse stage alone"] = evaluate(coarse_model, dm, split, **kwargs).table
+        # Only its voxel IoU row is shown: no side-view renders.
+        extra["coarse stage alone"] = evaluate(coarse_model, dm, split, side_view_scores=False, **kwargs).table
     result = add_baselines(result, dm, BASELINES, model, progress=progress)
     scene = (dm.shading.scene(effects=("shading",)) if dm.shading is not None else
              renderer.Scene(effects=("shading",), background=(1.0, 1.0, 1.0)))

@@ -10,6 +10,7 @@ import pytest
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
 from svr.demo import main, run
+from svr.evaluation import protocol
 from svr.training.run_folder import RunFolder
 
 from ..entry_points import expect_usage_error
@@ -30,9 +31,13 @@ def tiny(cache: Path) -> list[str]:
             "trainer.enable_model_summary=false", "callbacks.image_logger=null"]
 
 
-def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
+def test_demo_trains_evaluates_and_resumes(tmp_path, capsys, monkeypatch):
     out = tmp_path / "demo"
     args = [f"out={out}", "quiet=true", "protocol_workers=0", *tiny(tmp_path / "cache")]
+    side_scored = []
+    real_side_view_iou = protocol.side_view_iou
+    monkeypatch.setattr(protocol, "side_view_iou",
+                        lambda sdf, *a, **k: side_scored.append(len(sdf)) or real_side_view_iou(sdf, *a, **k))
     demo(args)
     printed = capsys.readouterr().out
     for row in ("ours (joint stage, refined)", "coarse stage alone", "mean shape", "category mean shape",
@@ -46,6 +51,8 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys):
     for name, row in [*summary["extra"].items(), *summary["baselines"].items()]:
         assert set(row["categories"]) == {"chair", "mug"} and 0.0 <= row["mean"] <= 1.0, name
     assert summary["num_images"] == 2 * 24 and summary["full_protocol"]
+    # The main row is scored from the side too, the coarse stage's (a voxel IoU row only) not.
+    assert set(summary["side_views"]["categories"]) == {"chair", "mug"} and sum(side_scored) == 2 * 24
     for f in ("table.csv", "per_object.csv", "per_image.csv", "predictions.png", "timings.json"):
         assert (out / f).is_file(), f
     assert len(list((out / "meshes").glob("*.ply"))) == 2
