@@ -239,6 +239,11 @@ def format_iou(x: Optional[float], signed: bool = False) -> str:
 ExtraRows = Optional[Mapping[str, IoUTable]]
 
 
+def _iou_row(label: str, table: IoUTable, cols: Sequence[int]) -> list[str]:
+    """A table row: the label, the IoU of the categories ``cols`` (indices into ``table.rows``), the mean."""
+    return [label] + [format_iou(table.rows[c].iou) for c in cols] + [format_iou(table.mean)]
+
+
 def _check_extra(extra_rows: ExtraRows) -> dict[str, IoUTable]:
     out = dict(extra_rows or {})
     for label, t in out.items():
@@ -260,10 +265,10 @@ def table_rows(result: EvaluationResult, extra_rows: ExtraRows = None,
     cols = result.present
     table = result.table
     header = ["method"] + [table.rows[c].name for c in cols] + ["mean"]
-    rows = [[label or f"ours ({result.output})"] + [format_iou(table.rows[c].iou) for c in cols] + [format_iou(table.mean)]]
+    rows = [_iou_row(label or f"ours ({result.output})", table, cols)]
     coarse = result.coarse_table
     if coarse is not None:
-        rows.append(["ours (coarse)"] + [format_iou(coarse.rows[c].iou) for c in cols] + [format_iou(coarse.mean)])
+        rows.append(_iou_row("ours (coarse)", coarse, cols))
     named = list(_check_extra(extra_rows).items())
     if result.baselines:
         named += [(LABELS[name], result.baseline_table(name)) for name in result.baselines]
@@ -340,9 +345,7 @@ def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: 
     lines = [title, ""] + _markdown(header, rows) + [""] + [f"- {n}" for n in table_notes(result)]
     side = result.side_table
     if side is not None:
-        cols = result.present
-        side_row = ([label or f"ours ({result.output})"] + [format_iou(side.rows[c].iou) for c in cols]
-                    + [format_iou(side.mean)])
+        side_row = _iou_row(label or f"ours ({result.output})", side, result.present)
         lines += ["", f"Side views: {SIDE_VIEWS_DESCRIPTION}.", ""] + _markdown(header, [side_row])
     return "\n".join(lines) + "\n"
 

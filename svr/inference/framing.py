@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import asdict, dataclass
-from typing import Optional, Union
+from typing import Union
 
 import numpy as np
 
@@ -67,6 +67,12 @@ class FrameTransform:
         return asdict(self)
 
 
+def border_pixels(image: np.ndarray) -> np.ndarray:
+    """(2 (H + W) - 4, ...) the pixels of the image's outer ring, each once."""
+    image = np.asarray(image)
+    return np.concatenate([image[0], image[-1], image[1:-1, 0], image[1:-1, -1]])
+
+
 def bounding_box(mask: np.ndarray) -> tuple[float, float, float, float]:
     """(left, top, right, bottom) of the True pixels, in pixel-edge coordinates (a single pixel at
     column 3 spans 3 to 4)."""
@@ -107,7 +113,7 @@ def background_mask(rgb: np.ndarray, name: str, tolerance: float = BACKGROUND_TO
     from scipy import ndimage
 
     rgb = np.asarray(rgb, dtype=np.int16)
-    border = np.concatenate([rgb[0], rgb[-1], rgb[1:-1, 0], rgb[1:-1, -1]])
+    border = border_pixels(rgb)
     colour = np.median(border, axis=0)
     plain = float((np.abs(border - colour).max(axis=1) <= tolerance).mean())
     if plain < PLAIN_BORDER_SHARE:
@@ -130,7 +136,7 @@ def background_mask(rgb: np.ndarray, name: str, tolerance: float = BACKGROUND_TO
 def check_inside(mask: np.ndarray, name: str) -> None:
     """Refuses a silhouette that touches the image border: the object is cut off, so its size and
     centre are unknown."""
-    if mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, -1].any():
+    if border_pixels(mask).any():
         raise ValueError(f"{name}: the object touches the image border, so it may be cut off and cannot be framed; "
                          f"use a photo with background all round it")
 
@@ -207,13 +213,13 @@ def _bilinear(image: np.ndarray, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
-def object_rgba(rgb: np.ndarray, name: str, alpha: Optional[np.ndarray] = None) -> np.ndarray:
-    """(H, W, 4) uint8: the photo with its alpha (given, from a mask file or the image) or, without
-    one, the plain background removed (``background_mask``)."""
+def object_rgba(rgb: np.ndarray, name: str) -> np.ndarray:
+    """(H, W, 4) uint8: a photo on a plain background with the background removed (alpha 0 there,
+    255 on the object: ``background_mask``)."""
     rgb = np.asarray(rgb, dtype=np.uint8)[..., :3]
-    a = np.asarray(alpha, dtype=np.uint8) if alpha is not None else background_mask(rgb, name).astype(np.uint8) * 255
-    return np.concatenate([rgb, a[..., None]], axis=-1)
+    alpha = background_mask(rgb, name).astype(np.uint8) * 255
+    return np.concatenate([rgb, alpha[..., None]], axis=-1)
 
 
-__all__ = ["Framing", "TRAINING_FRAMING", "FrameTransform", "bounding_box", "measure_framing", "background_mask",
+__all__ = ["Framing", "TRAINING_FRAMING", "FrameTransform", "border_pixels", "bounding_box", "measure_framing", "background_mask",
            "check_inside", "frame_image", "object_rgba"]

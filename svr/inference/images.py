@@ -15,7 +15,7 @@ from typing import Optional, Sequence, Union
 import numpy as np
 import torch
 
-from svr.inference.framing import object_rgba
+from svr.inference.framing import border_pixels, object_rgba
 from svr.nmr.format import images_to_float
 
 PathLike = Union[str, os.PathLike]
@@ -58,7 +58,7 @@ def check_silhouette(alpha: np.ndarray, name: str) -> None:
     if not opaque.any():
         raise ValueError(f"{name}: the silhouette is empty (no opaque pixel: a fully transparent image or a "
                          f"black mask); the object must be opaque (alpha or mask white) on a transparent background")
-    border = np.concatenate([opaque[0], opaque[-1], opaque[1:-1, 0], opaque[1:-1, -1]])
+    border = border_pixels(opaque)
     covered = float(border.mean())
     if covered > MAX_BORDER_COVER:
         raise ValueError(f"{name}: the silhouette covers {covered:.0%} of the image border (at most "

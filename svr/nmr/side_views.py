@@ -64,7 +64,7 @@ def side_view_iou(sdf: torch.Tensor, half_side: float, view: torch.Tensor, side_
     Returns:
         (B,) float64 on the CPU.
     """
-    alpha = torch.as_tensor(np.asarray(side_alpha) if not isinstance(side_alpha, torch.Tensor) else side_alpha)
+    alpha = torch.as_tensor(side_alpha)
     check_shape(alpha, "side_alpha", f"{sdf.shape[0]}, 2, S, S")
     pred = render_silhouettes(sdf, half_side, side_views(view), image_size=int(alpha.shape[-1]))
     return silhouette_iou(pred, alpha >= 128).mean(dim=1)
