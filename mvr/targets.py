@@ -182,7 +182,10 @@ def load_mesh(path: str | Path, max_hole_edges: int = 0) -> trimesh.Trimesh:
         raise ValueError(f"could not read target mesh file {str(p)!r}: not a valid {suffix[1:].upper()} "
                          f"file{detail}") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise ValueError(f"target mesh file {str(p)!r} holds no triangles")
+        # What a corrupt file gives depends on trimesh's optional decoders (charset_normalizer
+        # present: an empty mesh; absent: an ImportError above), so both say the same.
+        raise ValueError(f"target mesh file {str(p)!r} holds no triangles: not a valid {suffix[1:].upper()} "
+                         f"file, or an empty one")
     if not np.isfinite(mesh.vertices).all():
         raise ValueError(f"target mesh file {str(p)!r} has non-finite vertex coordinates")
     closed = close_small_holes(mesh, max_hole_edges, str(p))

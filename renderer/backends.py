@@ -171,6 +171,7 @@ def _march_one_ray_on_gpu() -> None:
         raise RuntimeError(f"a ray into a sphere grid came back wrong (hit={hit}, t={t:.4f}, expected t~2.5)")
 
 
+@torch.enable_grad()  # the first render of a process may come inside no_grad (inference)
 def _shade_one_ray_on_gpu() -> None:
     """Marches and shades one ray into the probe's sphere grid on the GPU with the fused kernels,
     forward and backward: the depth must be near 2.5 and the gradient finite and non-zero."""

@@ -58,18 +58,19 @@ class RunScores:
 
 
 def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool = True, again: bool = False,
-                         carving: bool = True) -> dict:
+                         carving: bool = True, device: str = "auto") -> dict:
     """The calibration record of the checkpoint at ``path``: the stored one, else (or with ``again``,
     replacing it) one searched on the data module's validation split and stored
     (``svr.evaluation.calibration_search``). Without ``carving`` only the level is searched (the
-    carvings read the input camera), and a stored record that carves is searched again."""
+    carvings read the input camera), and a stored record that carves is searched again. The search
+    runs on ``device`` ("auto": CUDA when available)."""
     record = None if again else stored_calibration(path)
     if record is not None and not carving and record["settings"].get("carve", "none") != "none":
         print(f"{path} holds a calibration that carves; searching again without carving", flush=True)
         record = None
     if record is None:
         datamodule.prepare_split("val", progress=progress)
-        search = search_calibration(load_model(path, "cpu"), datamodule.dataset("val"), carving=carving,
+        search = search_calibration(load_model(path, device), datamodule.dataset("val"), carving=carving,
                                     progress=progress)
         store_calibration(path, search)
         record = search.record()
@@ -80,13 +81,14 @@ def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool =
 
 def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str = "test", progress: bool = True,
               protocol_workers: int = 0, calibrate: bool = True, recalibrate: bool = False,
-              carving: bool = True) -> RunScores:
+              carving: bool = True, device: str = "auto") -> RunScores:
     """Scores a finished run with the benchmark protocol: its last stage's checkpoint, its coarse
     stage's and every baseline (``svr.evaluation.baselines``) on the same images; draws
     ``predictions.png`` and ``meshes/`` into ``out_dir`` (the tables are ``RunScores.write``'s). With
     ``calibrate`` each checkpoint is calibrated first (``calibrate_checkpoint``; with
     ``recalibrate`` searched again even where one is stored; without ``carving``, a level only);
-    without, none is applied."""
+    without, none is applied. Predictions run on ``device`` ("auto": CUDA when available); the
+    protocol's voxelisation on the CPU."""
     dm = instantiate(settings.data)
     dm.prepare_data()
     schedule = list(settings.stage.schedule)
@@ -95,10 +97,11 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     if calibrate:
         for stage, path in ((schedule[-1], final_ckpt), (schedule[0], coarse_ckpt)):
             if stage not in calibrations:
-                calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate, carving=carving)
+                calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate, carving=carving,
+                                                           device=device)
 
     def load(path: Path):
-        model = load_model(path, "cpu")
+        model = load_model(path, device)
         return model if calibrate else dataclasses.replace(model, calibration=None)
 
     kwargs = dict(progress=progress, protocol_workers=protocol_workers)  # batches: the data's eval_batch_size

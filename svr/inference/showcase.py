@@ -45,8 +45,8 @@ def showcase(model: LoadedModel, coarse_model: LoadedModel, dataset, categories:
             shots = []
             for sdf, view in ((coarse, v), (final, v), (final, v + 6), (final, v + 12)):
                 _, colours = render_views(sdf, hs, torch.tensor([[view % NUM_VIEWS]]), scene, 64)
-                shots.append(colours[0, 0].permute(1, 2, 0).clamp(0, 1).numpy())
-            rows.append((f"{name} #0 view {v}", image[0, :3].permute(1, 2, 0).numpy(), shots))
+                shots.append(colours[0, 0].permute(1, 2, 0).clamp(0, 1).cpu().numpy())
+            rows.append((f"{name} #0 view {v}", image[0, :3].permute(1, 2, 0).cpu().numpy(), shots))
             mesh = sdf_to_mesh(final[0], -hs, hs)
             path = mesh_dir / f"{name}_test0_view{v}.ply"
             mesh.export(path)

@@ -295,3 +295,16 @@ def test_without_the_fused_stage2_the_render_warns_and_uses_the_pytorch_one(monk
     assert sum("testing the stage-2 fallback" in r.getMessage() for r in caplog.records) == 1
     with pytest.raises(RuntimeError, match="testing the stage-2 fallback"):
         shade_trace(grid, cams, out.trace, RICH, stage2="fused")
+
+
+def test_the_gpu_probe_runs_its_backward_even_when_the_first_render_is_under_no_grad(monkeypatch):
+    """The GPU's stage-2 probe renders one ray forward and backward. A process's first render is
+    often inference (under no_grad): the probe must still take its gradient, or the fused stage 2
+    is wrongly reported unavailable for the whole process (seen on an H200). The probe's body is run
+    here on the CPU kernels."""
+    monkeypatch.setattr(backends, "_sphere_grid_on_gpu",
+                        lambda: SDFGrid.from_function(sphere_sdf(0.5), 8, bbox_min=-1.0, bbox_max=1.0))
+    monkeypatch.setattr(backends, "march_fused", lambda backend, *a, **k: fused.march_fused("cpu", *a, **k))
+    monkeypatch.setattr(backends, "shade_fused", lambda backend, *a, **k: fused.shade_fused("cpu", *a, **k))
+    with torch.no_grad():
+        backends._shade_one_ray_on_gpu()

@@ -25,7 +25,7 @@ from svr.training.resume import (requeued_run, resume_config, run_defaults, run_
 from svr.training.run_folder import RunFolder, run_folder_of
 from svr.training.stages import TrainingStopped
 
-from .test_train import CONFIGS, compose_train, state, tiny_overrides, train
+from .test_train import BITWISE, CONFIGS, compose_train, state, tiny_overrides, train
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -75,7 +75,8 @@ def test_sigterm_saves_and_resume_equals_uninterrupted_run(tmp_path, data_overri
     """Fault injection: SIGTERM at random steps, three times, resuming each time: every stopped
     attempt raises TrainingStopped (exit status 143) with last.ckpt at the step reached, and the
     end matches an uninterrupted run's weights (stages coarse -> refine, epochs of 3 batches)."""
-    base = tiny_overrides(data_overrides, 7, "stage.schedule=[coarse,refine]", "trainer.val_check_interval=3")
+    base = tiny_overrides(data_overrides, 7, "stage.schedule=[coarse,refine]", "trainer.val_check_interval=3",
+                          BITWISE)
     whole = train(compose_train(base), tmp_path / "whole")
 
     run = tmp_path / "stopped"
@@ -110,7 +111,7 @@ def test_sigterm_during_validation_resumes_exactly(tmp_path, data_overrides):
     uninterrupted run's weights (stopping inside the validation skipped the step's learning-rate
     update: resumed runs were one scheduler step behind)."""
     base = tiny_overrides(data_overrides, 7, "stage=coarse", "trainer.val_check_interval=2",
-                          "data.val_views=[0,6,12]", "data.eval_batch_size=1")
+                          "data.val_views=[0,6,12]", "data.eval_batch_size=1", BITWISE)
     whole = train(compose_train(base), tmp_path / "whole")
     run = tmp_path / "stopped"
     cfg = compose_train(base)
