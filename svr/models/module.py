@@ -213,6 +213,14 @@ class SVRLightningModule(pl.LightningModule):
         if terms is not None:
             for name, value in terms.as_dict().items():
                 self.log(f"train/{name}", value.detach(), batch_size=bs, prog_bar=name == "total", sync_dist=True)
+            if self.net.camera is not None:
+                # The batch's first views (random but the input), with their known cameras; the
+                # head's weights are its own.
+                k = self.net.camera.train_views
+                camera, right = self.net.camera.loss(batch.images[:, :k].flatten(0, 1), batch.view_ids[:, :k].flatten())
+                loss = loss + camera
+                self.log("train/camera", camera.detach(), batch_size=bs, sync_dist=True)
+                self.log("train/camera_views_right", right, batch_size=bs, sync_dist=True)
         return loss
 
     def on_train_batch_end(self, outputs: Any, batch: SVRBatch, batch_idx: int) -> None:
@@ -233,6 +241,21 @@ class SVRLightningModule(pl.LightningModule):
             for p in params:
                 p.grad = None
         self._skip_this_step = False
+
+    def configure_gradient_clipping(self, optimizer: torch.optim.Optimizer, gradient_clip_val=None,
+                                    gradient_clip_algorithm=None) -> None:
+        """Lightning's clipping, except that a camera head's gradients are clipped on their own: the
+        rest of the network's steps stay what they were without one."""
+        if self.net.camera is None or not gradient_clip_val:
+            self.clip_gradients(optimizer, gradient_clip_val, gradient_clip_algorithm)
+            return
+        camera = {id(p) for p in self.net.camera.parameters()}
+        params = [p for group in optimizer.param_groups for p in group["params"]]
+        for part in ([p for p in params if id(p) not in camera], [p for p in params if id(p) in camera]):
+            if gradient_clip_algorithm in (None, "norm"):
+                torch.nn.utils.clip_grad_norm_(part, float(gradient_clip_val))
+            else:
+                torch.nn.utils.clip_grad_value_(part, float(gradient_clip_val))
 
     def configure_optimizers(self):
         params = self._trainable()

@@ -9,6 +9,7 @@ from torch import nn
 import renderer
 
 from sdfcommon.tooling.checks import check_instance, check_positive
+from svr.models.camera import ViewHead
 from svr.models.decoder import SDFDecoder
 from svr.models.encoder import ImageEncoder
 from svr.models.local import PixelAlignedHead
@@ -45,10 +46,13 @@ class SVRNet(nn.Module):
         local: an optional PixelAlignedHead that corrects the decoder's SDF from image features read
             where each sample projects into the input view; a network with one needs the input
             images' NMR view indices (``forward(images, views=...)``).
+        camera: an optional ViewHead that estimates an image's NMR view and framing (for inputs
+            whose camera is unknown, such as photos); trained beside the rest, apart from it.
     """
 
     def __init__(self, encoder: ImageEncoder, decoder: SDFDecoder, refiner: BlockRefiner | SDFRefiner,
-                 half_side: float = 0.6, local: PixelAlignedHead | None = None) -> None:
+                 half_side: float = 0.6, local: PixelAlignedHead | None = None,
+                 camera: ViewHead | None = None) -> None:
         super().__init__()
         for name, mod, cls in (("encoder", encoder, ImageEncoder), ("decoder", decoder, SDFDecoder),
                                ("refiner", refiner, BlockRefiner)):
@@ -76,10 +80,13 @@ class SVRNet(nn.Module):
             if local.image_size != encoder.image_size:
                 raise ValueError(f"local.image_size ({local.image_size}) must equal encoder.image_size "
                                  f"({encoder.image_size})")
+        if camera is not None:
+            check_instance(camera, "camera", ViewHead, "a ViewHead or None")
         self.encoder = encoder
         self.decoder = decoder
         self.refiner = refiner
         self.local = local
+        self.camera = camera
         self.half_side = float(half_side)
 
     @property

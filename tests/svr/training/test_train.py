@@ -157,6 +157,29 @@ def test_same_seed_same_weights(tmp_path, data_overrides):
     assert any(not torch.equal(a[k], c[k]) for k in a)
 
 
+def test_a_camera_head_trains_in_every_stage_and_leaves_the_rest_as_without_it(tmp_path, data_overrides):
+    """model=pixel's camera head learns from every view of each batch, in each stage (the refine
+    stage freezes the rest), and is clipped on its own: the other weights end bit for bit as a run
+    without a head gives (on the CPU)."""
+    pixel = ["model=pixel", "model.encoder.channels=[8,16,32,32]", "model.encoder.latent_dim=64",
+             "model.decoder.channels=[16,8,8]", "model.decoder.grid_resolution=32", "model.refiner.channels=[4,8]",
+             "model.local.image_channels=[4,8,16]", "model.local.volume_channels=8", "model.local.hidden=16",
+             "model.local.mirror_axis=null", "model.camera.channels=[8,16]", "stage.schedule=[coarse,refine]",
+             "trainer.gradient_clip_val=0.01", BITWISE]  # a clip small enough to act on every step
+
+    def final(name: str, *extra: str) -> tuple[dict, dict]:
+        result = train(compose_train(tiny_overrides(data_overrides, 3, *pixel, *extra)), tmp_path / name)
+        return (state(result.checkpoint("coarse", "final"), "net."), state(result.checkpoint("refine", "final"), "net."))
+
+    (coarse, refine), (plain_coarse, plain_refine) = final("head"), final("plain", "model.camera=null")
+    for with_head, without, stage in ((coarse, plain_coarse, "coarse"), (refine, plain_refine, "refine")):
+        assert_same({k: v for k, v in with_head.items() if not k.startswith("net.camera.")}, without, stage)
+    head = {k: v for k, v in coarse.items() if k.startswith("net.camera.") and v.is_floating_point()}
+    assert head and any(not torch.equal(head[k], refine[k]) for k in head)  # it trained in refine too
+    with open(tmp_path / "head" / "coarse" / "csv" / "metrics.csv") as f:
+        assert {"train/camera", "train/camera_views_right"} <= set(next(csv.reader(f)))
+
+
 # ------------------------------------------------------------------------------------------------
 # learning and robustness
 
