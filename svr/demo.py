@@ -156,6 +156,8 @@ def run(settings: DemoSettings, overrides: Optional[Sequence[str]] = None) -> De
     files = [*report.values(), *scores.pictures, write_json(out_dir / "timings.json", timings)]
     result = DemoResult(scores.table, json.loads(report["json"].read_text()), [str(f) for f in files], timings)
     _print_summary(result, out_dir)
+    print(f"your own photo next: python -m svr.infer ckpt_path={folder.best_or_final(schedule[-1])} "
+          f"images=PHOTO.jpg (docs/svr_inference.md)")
     return result
 
 

@@ -42,10 +42,12 @@ def run(settings: InferSettings) -> InferenceReport:
     report = infer_files(model, settings.images, folder, masks=settings.masks, mask_suffix=settings.mask_suffix or "",
                          views=settings.views, render_size=settings.render_size, batch_size=settings.batch_size,
                          formats=settings.formats, require_watertight=settings.require_watertight,
-                         backend=settings.backend, progress=settings.progress, input_view=settings.input_view)
+                         backend=settings.backend, progress=settings.progress, input_view=settings.input_view,
+                         azimuth=settings.azimuth, frame=settings.frame)
     for item in report.images:
         if item.done:
-            note = f" ({item.problem})" if item.problem else ""
+            notes = ([item.camera] if item.camera else []) + ([item.problem] if item.problem else [])
+            note = f" ({'; '.join(notes)})" if notes else ""
             print("wrote " + ", ".join(str(p) for p in item.files.values()) + note)
         else:
             print(f"failed: {_named(item)}")

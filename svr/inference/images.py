@@ -71,22 +71,17 @@ def _has_alpha(img) -> bool:
     return img.mode in ("RGBA", "LA", "PA", "La", "RGBa") or (img.mode == "P" and "transparency" in img.info)
 
 
-def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int = 64) -> torch.Tensor:
-    """Reads one input image for the network.
+def read_rgba(path: PathLike, mask: Optional[PathLike] = None) -> np.ndarray:
+    """Reads one input image as it is, with its silhouette in the alpha channel.
 
     RGBA (or grey + alpha, or a palette with transparency) is used as is; for RGB or grey a mask
     file (any mode, read as grey: white = object) replaces the alpha channel, and without one a plain
     background is removed (``svr.inference.framing.background_mask``; refused where the border is
-    not one plain colour or nothing differs from it). A non-square
-    image is padded to a square (transparent, white); any other size is resized to
-    ``image_size`` (area averaging when shrinking), with a warning. The result is converted like the
-    datasets' images (``svr.nmr.format.images_to_float``: RGB on white).
-
-    The silhouette must be an object on a background (``check_silhouette``): a fully transparent
-    image or an inverted mask is refused.
+    not one plain colour or nothing differs from it). The silhouette must be an object on a
+    background (``check_silhouette``): a fully transparent image or an inverted mask is refused.
 
     Returns:
-        (4, S, S) float32 RGBA in [0, 1].
+        (H, W, 4) uint8 RGBA, the file's size.
     Raises:
         FileNotFoundError / ValueError naming the image or mask file.
     """
@@ -106,9 +101,24 @@ def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int 
     else:  # a photo on a plain background: the background removed (or a one-line refusal)
         rgba = Image.fromarray(object_rgba(np.asarray(img.convert("RGB")), str(path)), "RGBA")
     check_silhouette(np.asarray(rgba.getchannel("A")), str(mask if mask is not None else path))
+    return np.asarray(rgba, dtype=np.uint8)
+
+
+def rgba_to_input(rgba: np.ndarray, name: str, image_size: int = 64) -> torch.Tensor:
+    """An (H, W, 4) uint8 image as the network's input: a non-square image padded to a square
+    (transparent, white), any other size resized to ``image_size`` (area averaging when shrinking)
+    with a warning naming ``name``, then converted like the datasets' images
+    (``svr.nmr.format.images_to_float``: RGB on white).
+
+    Returns:
+        (4, S, S) float32 RGBA in [0, 1].
+    """
+    from PIL import Image
+
+    rgba = Image.fromarray(np.asarray(rgba, dtype=np.uint8), "RGBA")
     w, h = rgba.size
     if (w, h) != (image_size, image_size):
-        warnings.warn(f"{path}: {w}x{h} image resized to {image_size}x{image_size}"
+        warnings.warn(f"{name}: {w}x{h} image resized to {image_size}x{image_size}"
                       + (" (padded to a square first)" if w != h else ""), UserWarning, stacklevel=2)
         if w != h:
             side = max(w, h)
@@ -119,6 +129,18 @@ def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int 
         rgba = rgba.resize((image_size, image_size), resample)
     arr = np.asarray(rgba, dtype=np.uint8).transpose(2, 0, 1)  # (4, S, S), row 0 = top
     return images_to_float(arr, "composite")
+
+
+def load_image(path: PathLike, mask: Optional[PathLike] = None, image_size: int = 64) -> torch.Tensor:
+    """Reads one input image for the network as it comes (``read_rgba``, then ``rgba_to_input``:
+    resized, not framed; ``svr.inference.framing.frame_image`` frames).
+
+    Returns:
+        (4, S, S) float32 RGBA in [0, 1].
+    Raises:
+        FileNotFoundError / ValueError naming the image or mask file.
+    """
+    return rgba_to_input(read_rgba(path, mask), str(path), image_size)
 
 
 @dataclass(frozen=True)
@@ -183,5 +205,5 @@ def find_mask(image: Path, mask_suffix: str = "_mask") -> Optional[Path]:
     return None
 
 
-__all__ = ["load_image", "find_images", "ImageInputs", "find_mask", "check_silhouette", "IMAGE_SUFFIXES",
+__all__ = ["load_image", "read_rgba", "rgba_to_input", "find_images", "ImageInputs", "find_mask", "check_silhouette", "IMAGE_SUFFIXES",
            "MAX_BORDER_COVER"]

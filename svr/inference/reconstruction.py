@@ -8,6 +8,7 @@ surface is a failed item of its ``InferenceReport``, and the others go on. The f
 ``LoadedModel``; turning a checkpoint path into one is the command's (``svr.infer``)."""
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from dataclasses import dataclass
@@ -21,14 +22,16 @@ from tqdm.auto import tqdm
 import renderer
 from sdfcommon.numerics.meshing import sdf_to_mesh
 from sdfcommon.tooling.checks import check_int
-from sdfcommon.tooling.outputs import ensure_output_dir, write_mesh, write_npz, write_png
-from svr.inference.images import find_images, find_mask, load_image
+from sdfcommon.tooling.outputs import ensure_output_dir, write_json, write_mesh, write_npz, write_png
+from svr.inference.framing import TRAINING_FRAMING, frame_image
+from svr.inference.images import find_images, find_mask, read_rgba, rgba_to_input
+from svr.inference.input_camera import InputCamera, estimate_cameras, mesh_in_camera_frame, view_of_azimuth
 from svr.inference.prediction import LoadedModel, check_input_views, check_model, predict
-from svr.nmr.format import check_view_ids
+from svr.nmr.format import NUM_VIEWS, check_view_ids
 from svr.nmr.views import PREVIEW_VIEWS, render_previews
 
 PathLike = Union[str, os.PathLike]
-OUTPUT_FORMATS = ("npz", "ply", "obj", "png")
+OUTPUT_FORMATS = ("npz", "ply", "obj", "png", "camera")
 
 
 @dataclass(frozen=True)
@@ -45,6 +48,8 @@ class Reconstruction:
         views: the NMR view indices of ``renders``.
         problem: what is wrong with the mesh ("no surface ...", "not watertight ..."), None when
             it is a non-empty watertight mesh (``mesh_problem``).
+        camera: the input's camera when known (given or estimated); then ``views`` are offsets
+            from its view.
     """
 
     values: torch.Tensor
@@ -55,6 +60,7 @@ class Reconstruction:
     renders: Optional[torch.Tensor]
     views: tuple[int, ...]
     problem: Optional[str] = None
+    camera: Optional[InputCamera] = None
 
 
 def clean_mesh(mesh):
@@ -115,15 +121,23 @@ def reconstruct_images(model: LoadedModel, images: torch.Tensor, views: Sequence
 
 
 def _reconstruct(m: LoadedModel, images: torch.Tensor, views: Sequence[int], render_size: int, batch_size: int,
-                 backend: str, input_views) -> list[Reconstruction]:
-    """``reconstruct_images`` without its verdicts: each Reconstruction says its mesh's problem."""
+                 backend: str, input_views, cameras: Optional[Sequence[InputCamera]] = None) -> list[Reconstruction]:
+    """``reconstruct_images`` without its verdicts: each Reconstruction says its mesh's problem.
+    With ``cameras`` (one per image) the previews are rendered from each camera's view plus the
+    offsets ``views``."""
     views = check_view_ids(views)
     check_int(render_size, "render_size", minimum=1)
+    if cameras is not None and len(cameras) != len(images):
+        raise ValueError(f"cameras must have one entry per image ({len(images)}), got {len(cameras)}")
     grid = predict(m, images, batch_size, views=input_views)
     renders = None
     if views:
-        renders = torch.cat([render_previews(renderer.SDFGrid(v, -m.half_side, m.half_side), views, render_size, backend)
-                             for v in grid.values.split(batch_size)])
+        per_image = (torch.tensor([[c.view + v for v in views] for c in cameras], dtype=torch.float64) % NUM_VIEWS
+                     if cameras is not None else None)
+        renders = torch.cat([render_previews(renderer.SDFGrid(v, -m.half_side, m.half_side),
+                                             views if per_image is None else per_image[a:a + batch_size],
+                                             render_size, backend)
+                             for a, v in zip(range(0, len(grid.values), batch_size), grid.values.split(batch_size))])
     values = grid.values.detach().float().cpu()
     lo = tuple(float(c) for c in grid.bbox_min.cpu())
     hi = tuple(float(c) for c in grid.bbox_max.cpu())
@@ -134,7 +148,8 @@ def _reconstruct(m: LoadedModel, images: torch.Tensor, views: Sequence[int], ren
         out.append(Reconstruction(values=v, bbox_min=lo, bbox_max=hi, mesh=mesh,
                                   watertight=bool(len(mesh.faces) and mesh.is_watertight),
                                   renders=renders[b] if renders is not None else None,
-                                  views=tuple(int(x) for x in views), problem=problem))
+                                  views=tuple(int(x) for x in views), problem=problem,
+                                  camera=cameras[b] if cameras is not None else None))
     return out
 
 
@@ -168,7 +183,9 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
                         formats: Sequence[str] = OUTPUT_FORMATS, meta: Optional[Mapping[str, str]] = None
                         ) -> dict[str, Path]:
     """Writes a Reconstruction (each file atomically): ``<name>_sdf.npz``, ``<name>.ply``,
-    ``<name>.obj`` (skipped for an empty mesh), ``<name>_views.png``.
+    ``<name>.obj`` (the canonical frame; skipped for an empty mesh), ``<name>_views.png``, and with
+    the input's camera known ("camera") ``<name>_camera.json`` (``InputCamera.record``) and
+    ``<name>_camera_frame.ply`` (the mesh in the camera's frame: ``mesh_in_camera_frame``).
 
     Args:
         formats: any of ``OUTPUT_FORMATS``.
@@ -190,6 +207,11 @@ def save_reconstruction(rec: Reconstruction, out_dir: PathLike, name: str, input
                 written[fmt] = write_mesh(folder / f"{name}.{fmt}", rec.mesh)
     if "png" in formats:
         written["png"] = write_png(folder / f"{name}_views.png", preview_picture(input_image, rec.renders))
+    if "camera" in formats and rec.camera is not None:
+        written["camera"] = write_json(folder / f"{name}_camera.json", rec.camera.record())
+        if len(rec.mesh.faces):
+            written["camera_frame"] = write_mesh(folder / f"{name}_camera_frame.ply",
+                                                 mesh_in_camera_frame(rec.mesh, rec.camera))
     return written
 
 
@@ -221,12 +243,14 @@ class ImageResult:
         error: why it failed (None: done): the image or its mask could not be read or was refused,
             the prediction has no surface, or (``require_watertight``) its mesh is not watertight.
         problem: a problem of a written mesh that did not fail it (not watertight), else None.
+        camera: the estimated camera in words (None when given or unknown).
     """
 
     image: Path
     files: Mapping[str, Path]
     error: Optional[str] = None
     problem: Optional[str] = None
+    camera: Optional[str] = None
 
     @property
     def done(self) -> bool:
@@ -258,12 +282,19 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
                 masks: Optional[Sequence[Optional[PathLike]]] = None, mask_suffix: str = "_mask",
                 views: Sequence[int] = PREVIEW_VIEWS, render_size: int = 128, batch_size: int = 16,
                 formats: Sequence[str] = OUTPUT_FORMATS, require_watertight: bool = False,
-                backend: str = "auto", progress: bool = False, input_view: Optional[float] = None
-                ) -> InferenceReport:
+                backend: str = "auto", progress: bool = False, input_view: Optional[float] = None,
+                azimuth: Optional[float] = None, frame: Optional[bool] = None) -> InferenceReport:
     """Reads images (files, folders or glob patterns), reconstructs them and writes the results into
-    ``output_dir``, image by image: an image that cannot be read, is refused (``load_image``) or
-    gives no surface (or, with ``require_watertight``, a mesh that is not watertight) is a failed
-    item of the report, with nothing written for it, and the others go on.
+    ``output_dir``, image by image: an image that cannot be read, is refused (``read_rgba``,
+    ``frame_image``) or gives no surface (or, with ``require_watertight``, a mesh that is not
+    watertight) is a failed item of the report, with nothing written for it, and the others go on.
+
+    The input camera is ``input_view`` or ``azimuth`` when given; otherwise the network's camera
+    head estimates it from each image (``svr.inference.input_camera.estimate_cameras``), and a
+    network that reads the camera but has no head is refused. Framing (``frame_image``) crops and
+    scales each photo so that its object sits as in a training render from that camera: by default
+    (``frame`` None) where the camera is not given, with the head's framing (else the training
+    renders' median); ``frame`` True or False asks for it or not.
 
     Args:
         model: the network and its stage (``svr.inference.prediction.load_model``).
@@ -271,8 +302,10 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
             of them (``svr.inference.images.find_images``).
         masks: one mask path (or None) per expanded image; default: ``<stem><mask_suffix>.*`` beside
             each image when it exists.
+        views: the preview's views: offsets from the input camera's view when it is known, NMR
+            views otherwise.
         input_view: the NMR view index (in [0, 24): azimuth -15 * view degrees at 30 degrees
-            elevation) of every image's camera; needed by a network with a pixel-aligned head.
+            elevation) of every image's camera. azimuth: the same in degrees (not both).
         Others: see ``reconstruct_images`` and ``save_reconstruction``.
     Returns:
         InferenceReport: per image, the files written or why it failed, and what was skipped.
@@ -285,7 +318,17 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
     check_int(batch_size, "batch_size", minimum=1)
     check_int(render_size, "render_size", minimum=1)
     views = check_view_ids(views)
-    check_input_views(input_view, 1, m.net.needs_views, "input_view")
+    if input_view is not None and azimuth is not None:
+        raise ValueError(f"give input_view or azimuth, not both (got input_view={input_view!r}, azimuth={azimuth!r})")
+    given = view_of_azimuth(azimuth) if azimuth is not None else input_view
+    head = getattr(m.net, "camera", None)
+    if given is None and m.net.needs_views and head is None:
+        raise ValueError("input_view: this checkpoint reads the input camera and has no camera head to estimate it "
+                         "(trained before model.camera existed); give input_view=K (an NMR view, 0..23) or "
+                         "azimuth=DEGREES")
+    check_input_views(given, 1, False, "input_view")
+    if frame not in (None, True, False):
+        raise ValueError(f"frame must be true, false or null (frame where the camera is not given), got {frame!r}")
     check_formats(formats)
     folder = ensure_output_dir(output_dir, "output_dir")
     found = find_images(images, mask_suffix)
@@ -294,21 +337,24 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
         raise ValueError(f"masks must have one entry per image ({len(paths)} images), got {len(masks)}")
     names = _unique_names(paths)
     meta = {"checkpoint": str(m.checkpoint) if m.checkpoint else "", "stage": m.stage, "output": m.output_name}
+    framed = frame if frame is not None else given is None
     results: dict[int, ImageResult] = {}
-    loaded: list[tuple[int, torch.Tensor]] = []
+    loaded: list[tuple[int, torch.Tensor, Optional[InputCamera]]] = []
     for i, p in enumerate(paths):
         try:
-            loaded.append((i, load_image(p, masks[i] if masks is not None else find_mask(p, mask_suffix),
-                                         m.image_size)))
+            rgba = read_rgba(p, masks[i] if masks is not None else find_mask(p, mask_suffix))
+            loaded.append((i, *input_and_camera(m, rgba, str(p), given, framed)))
         except (OSError, ValueError) as err:  # the message names the file
             results[i] = ImageResult(p, {}, error=str(err))
     with tqdm(total=len(paths), desc="infer", unit="img", disable=not progress) as bar:
         bar.update(len(results))
         for start in range(0, len(loaded), batch_size):
             chunk = loaded[start:start + batch_size]
-            recs = _reconstruct(m, torch.stack([t for _, t in chunk]), views, render_size, batch_size, backend,
-                                input_view)
-            for (i, tensor), rec in zip(chunk, recs):
+            cameras = [c for _, _, c in chunk]
+            known = all(c is not None for c in cameras)
+            recs = _reconstruct(m, torch.stack([t for _, t, _ in chunk]), views, render_size, batch_size, backend,
+                                [c.view for c in cameras] if known else None, cameras if known else None)
+            for (i, tensor, _), rec in zip(chunk, recs):
                 if len(rec.mesh.faces) == 0:
                     results[i] = ImageResult(paths[i], {}, error=rec.problem)
                     continue
@@ -316,10 +362,40 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
                     results[i] = ImageResult(paths[i], {}, error=f"{rec.problem} (require_watertight=true)")
                     continue
                 files = save_reconstruction(rec, folder, names[i], tensor, formats, {**meta, "image": str(paths[i])})
-                results[i] = ImageResult(paths[i], files, problem=rec.problem)
+                results[i] = ImageResult(paths[i], files, problem=rec.problem, camera=_camera_words(rec.camera))
             bar.update(len(recs))
     return InferenceReport(images=tuple(results[i] for i in range(len(paths))), skipped=found.skipped)
 
 
+def _camera_words(camera: Optional[InputCamera]) -> Optional[str]:
+    if camera is None or camera.source != "estimated":
+        return None
+    return (f"camera estimated: NMR view {camera.view:g}, azimuth {camera.azimuth_deg:g} degrees, "
+            f"probability {camera.probability:.2f}")
+
+
+def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optional[float],
+                      framed: bool) -> tuple[torch.Tensor, Optional[InputCamera]]:
+    """One photo's network input and camera: the camera given, or estimated by the camera head from
+    the photo framed as the training renders' median (the head crops to the silhouette, so only the
+    resolution matters); then, when ``framed``, the photo framed as the camera's renders are (the
+    head's framing when it has one, else the median)."""
+    head = getattr(m.net, "camera", None)
+    camera = InputCamera(view=float(given)) if given is not None else None
+    if head is not None and (camera is None or framed):
+        median, _ = frame_image(rgba, name, m.image_size, TRAINING_FRAMING)
+        estimate = estimate_cameras(m.net, rgba_to_input(median, name, m.image_size)[None])[0]
+        camera = camera if camera is not None else estimate
+        framing = estimate.framing
+    else:
+        framing = TRAINING_FRAMING
+    if not framed:
+        return rgba_to_input(rgba, name, m.image_size), camera
+    image, transform = frame_image(rgba, name, m.image_size, framing)
+    if camera is not None:
+        camera = dataclasses.replace(camera, framing=framing, transform=transform)
+    return rgba_to_input(image, name, m.image_size), camera
+
+
 __all__ = ["Reconstruction", "reconstruct_images", "clean_mesh", "mesh_problem", "preview_picture", "save_reconstruction",
-           "infer_files", "ImageResult", "InferenceReport", "check_formats", "OUTPUT_FORMATS"]
+           "infer_files", "input_and_camera", "ImageResult", "InferenceReport", "check_formats", "OUTPUT_FORMATS"]

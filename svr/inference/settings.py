@@ -10,6 +10,7 @@ from typing import Optional, Union
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.hardware import check_backend
 from sdfcommon.tooling.settings import PathSettings
+from svr.inference.input_camera import view_of_azimuth
 from svr.inference.prediction import check_input_views
 from svr.inference.reconstruction import check_formats
 from svr.nmr.format import check_view_ids
@@ -36,8 +37,11 @@ class InferSettings:
         require_watertight: a mesh that is not watertight is an error rather than a warning.
         backend: the renderer's march (one that can run here). progress: a progress bar.
         paths: as ``PathSettings``.
-        input_view: the NMR view index the images were taken from, in [0, 24) (networks with a
-            pixel-aligned head need it; None for others).
+        input_view: the NMR view index the images were taken from, in [0, 24) (None: estimated by
+            the checkpoint's camera head where it has one).
+        azimuth: the same camera's azimuth in degrees (not both).
+        frame: crop and scale each photo as the training renders are framed (None: where the
+            camera is not given).
         overwrite: write into an output folder that already holds files (same names are replaced);
             False: such a folder is refused.
     """
@@ -56,6 +60,8 @@ class InferSettings:
     backend: str
     progress: bool
     input_view: Optional[float]
+    azimuth: Optional[float]
+    frame: Optional[bool]
     overwrite: bool
     paths: PathSettings
 
@@ -69,6 +75,10 @@ class InferSettings:
         check_formats(self.formats)
         check_backend(self.backend)
         check_input_views(self.input_view, 1, False, "input_view")
+        if self.input_view is not None and self.azimuth is not None:
+            raise ValueError("give input_view or azimuth, not both")
+        if self.azimuth is not None:
+            view_of_azimuth(self.azimuth)
 
 
 __all__ = ["InferSettings", "MAX_RENDER_SIZE"]

@@ -58,22 +58,29 @@ def render_views(
 
 
 @torch.no_grad()
-def render_previews(grid: renderer.SDFGrid, views: Sequence[int] = PREVIEW_VIEWS, image_size: int = 128,
+def render_previews(grid: renderer.SDFGrid, views: Sequence[int] | torch.Tensor = PREVIEW_VIEWS, image_size: int = 128,
                     backend: str = "auto") -> torch.Tensor:
-    """Shaded renders of each grid from the same NMR ``views`` (``PREVIEW_SCENE``: grey, white background).
+    """Shaded renders of each grid from NMR ``views`` (``PREVIEW_SCENE``: grey, white background).
 
     Args:
         grid: B SDF grids over a cube centred at the origin (the network's box).
+        views: the same K view indices 0..23 for every grid, or a (B, K) tensor of each grid's own
+            (fractional allowed).
     Returns:
         (B, K, S, S, 3) float32 CPU in [0, 1].
     """
-    views = list(check_view_ids(views, allow_empty=False))
+    if isinstance(views, torch.Tensor) and views.ndim == 2:
+        check_shape(views, "views", f"{grid.batch_size}, K")
+        if not bool(torch.isfinite(views).all()):
+            raise ValueError("views must be finite NMR view indices")
+        ids = views.detach().double().cpu()
+    else:
+        ids = torch.tensor(list(check_view_ids(views, allow_empty=False)), dtype=torch.long).repeat(grid.batch_size, 1)
     half = float(grid.bbox_max[0])
     if not (torch.allclose(grid.bbox_max, torch.full_like(grid.bbox_max, half))
             and torch.allclose(grid.bbox_min, torch.full_like(grid.bbox_min, -half))):
         raise ValueError(f"grid must span a cube centred at the origin (the network's box), got "
                          f"{grid.bbox_min.tolist()} .. {grid.bbox_max.tolist()}")
-    ids = torch.tensor(views, dtype=torch.long).repeat(grid.batch_size, 1)
     _, colours = render_views(grid.values, half, ids, PREVIEW_SCENE, image_size, backend=backend)
     return colours.permute(0, 1, 3, 4, 2).float().clamp(0, 1).cpu()
 

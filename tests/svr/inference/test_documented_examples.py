@@ -1,7 +1,8 @@
 """The inference examples the docs show run as written (issue 40 item 19): the Python example of
 docs/svr_inference.md and every ``python -m svr.infer`` line of that page, the README and
 configs/infer.yaml, on a checkpoint of a tiny ``model=pixel`` network made here (the demo's kind,
-which needs ``input_view``), with input files of the names the examples use."""
+which reads the input camera and estimates it with its camera head), with input files of the names
+the examples use."""
 from __future__ import annotations
 
 import re
@@ -46,7 +47,8 @@ def pixel_checkpoint(tmp_path_factory) -> Path:
 
 def make_input(path: Path) -> None:
     """An input of the name an example uses: a folder (holding an RGBA image), an RGBA PNG, an RGB
-    JPEG or (a name ending in ``_mask``) a mask; a grey disc on a transparent background."""
+    JPEG (on a plain white background) or (a name ending in ``_mask``) a mask; a grey disc on a
+    transparent background."""
     if path.suffix == "":
         path.mkdir(parents=True, exist_ok=True)
         return make_input(path / "object.png")
@@ -57,7 +59,7 @@ def make_input(path: Path) -> None:
     if path.stem.endswith("_mask"):
         Image.fromarray(alpha, "L").save(path)
     elif path.suffix.lower() in (".jpg", ".jpeg"):
-        Image.fromarray(grey, "RGB").save(path)
+        Image.fromarray(np.where(alpha[..., None] > 0, grey, 255).astype(np.uint8), "RGB").save(path)
     else:
         Image.fromarray(np.dstack([grey, alpha]), "RGBA").save(path)
 

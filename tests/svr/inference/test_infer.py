@@ -126,12 +126,15 @@ def test_rgb_plus_mask_equals_rgba_and_other_sizes_are_resized(tiny_run, tmp_pat
     with pytest.warns(UserWarning, match="resized to 64x64"):
         x = load_image(tmp_path / "big.png")
     assert x.shape == (4, 64, 64) and 0 <= float(x.min()) and float(x.max()) <= 1
-    # A folder: the mask is found beside its image and is not an input itself.
+    # A folder: the mask is found beside its image and is not an input itself (the renders are
+    # used as they come: framing refuses an object that touches the border, as this one does).
     out = tmp_path / "out"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        report = infer_files(load_model(tiny_run.checkpoint, "cpu"), tmp_path, out, views=[], formats=["npz"])
-    assert len(report.done) == 4 and not report.failed and not (out / "b_mask_sdf.npz").exists()  # + plain.png
+        report = infer_files(load_model(tiny_run.checkpoint, "cpu"), tmp_path, out, views=[], formats=["npz"],
+                             frame=False)
+    assert len(report.done) == 4 and not report.failed, [r.error for r in report.failed]
+    assert not (out / "b_mask_sdf.npz").exists()  # four: a, b (its mask found), big, plain
 
 
 def test_errors_name_the_file_or_argument(tiny_run, tmp_path, monkeypatch, capsys):
@@ -322,7 +325,12 @@ def test_settings_are_built_from_infer_yaml():
     settings = build_settings(cfg)
     assert isinstance(settings, InferSettings) and isinstance(settings.paths, PathSettings)
     assert settings.images == ["a.png", "b.png"] and settings.output_dir is None and settings.masks is None
-    assert settings.formats == ["npz", "ply", "obj", "png"] and settings.views == [0, 6, 12, 18]
+    assert settings.formats == ["npz", "ply", "obj", "png", "camera"] and settings.views == [0, 6, 12, 18]
+    assert settings.input_view is None and settings.azimuth is None and settings.frame is None
+    with pytest.raises(ValueError, match="input_view or azimuth, not both"):
+        build_settings(compose("infer", ["ckpt_path=x.ckpt", "images=a.png", "input_view=1", "azimuth=30"]))
+    with pytest.raises(ValueError, match="azimuth must be a finite number"):
+        build_settings(compose("infer", ["ckpt_path=x.ckpt", "images=a.png", "azimuth=nan"]))
     with pytest.raises(ValueError, match="nonsense: unknown setting"):
         build_settings(compose("infer", ["ckpt_path=x.ckpt", "images=a.png", "+nonsense=1"]))
     with pytest.raises(TypeError, match="require_watertight must be"):

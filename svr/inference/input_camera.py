@@ -1,0 +1,120 @@
+"""The camera an input image was taken from: given (``input_view`` or ``azimuth``) or estimated by
+the network's ViewHead (``svr.models.camera``), with its place in the frame, the transform from
+the world (the training data's canonical frame: y up, the front towards -z) to the camera's frame,
+and what a user needs in a JSON file. The camera is NMR's: elevation 30 degrees, distance 2.732, a
+30 degree field of view; the estimate picks among its 24 azimuths (15 degrees apart)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Optional
+
+import numpy as np
+import torch
+
+import renderer
+from svr.inference.framing import Framing, FrameTransform
+from svr.nmr.format import NUM_VIEWS
+
+# renderer.Cameras.nmr's camera.
+NMR_ELEVATION_DEG, NMR_DISTANCE, NMR_FOV_DEG = 30.0, 2.732, 30.0
+
+
+def view_of_azimuth(azimuth_deg: float, name: str = "azimuth") -> float:
+    """The NMR view index in [0, 24) of an azimuth in degrees (NMR's azimuth is ``-15 * view``)."""
+    try:
+        a = float(azimuth_deg)
+    except (TypeError, ValueError):
+        a = float("nan")
+    if not math.isfinite(a):
+        raise ValueError(f"{name} must be a finite number of degrees, got {azimuth_deg!r}")
+    return float((-a / 15.0) % NUM_VIEWS)
+
+
+@dataclass(frozen=True)
+class InputCamera:
+    """The camera of one input image.
+
+    Attributes:
+        view: NMR view index (azimuth ``-15 * view`` degrees; fractional when given so).
+        source: "given" or "estimated".
+        probability: the estimate's probability of ``view`` (None when given).
+        framing: where the object's silhouette sits in a training render from this camera (the
+            estimate's; None when given or unknown).
+        transform: how the photo was cropped and scaled into the network's input (None: resized as
+            it came).
+    """
+
+    view: float
+    source: str = "given"
+    probability: Optional[float] = None
+    framing: Optional[Framing] = None
+    transform: Optional[FrameTransform] = None
+
+    @property
+    def azimuth_deg(self) -> float:
+        """In [0, 360)."""
+        return float((-15.0 * self.view) % 360.0)
+
+    def world_to_camera(self) -> np.ndarray:
+        """(4, 4) float64: world points (the canonical frame) to the camera's frame, whose x runs to
+        the image's right, y to its top and z from the object towards the eye (the eye at the
+        origin, looking down -z). NMR's camera is left-handed (``renderer.Cameras.nmr``), so this
+        matrix has determinant -1: the camera-frame copy is the photo's handedness."""
+        cams = renderer.Cameras.nmr([self.view], dtype=torch.float64)
+        eye = cams.eye[0].numpy()
+        rot = np.stack([cams.right[0].numpy(), cams.up[0].numpy(), -cams.forward[0].numpy()])
+        out = np.eye(4)
+        out[:3, :3] = rot
+        out[:3, 3] = -rot @ eye
+        return out
+
+    def record(self) -> dict[str, Any]:
+        """Plain values for ``<stem>_camera.json``."""
+        out: dict[str, Any] = {
+            "source": self.source, "nmr_view": round(float(self.view), 6), "azimuth_deg": round(self.azimuth_deg, 6),
+            "elevation_deg": NMR_ELEVATION_DEG, "distance": NMR_DISTANCE, "fov_deg": NMR_FOV_DEG,
+            "note": ("the training renders' camera (elevation and distance fixed); world: y up, front towards -z; "
+                     "camera frame: x right, y up, z towards the eye"),
+            "world_to_camera": [[round(float(v), 9) for v in row] for row in self.world_to_camera()],
+        }
+        if self.probability is not None:
+            out["probability"] = round(float(self.probability), 6)
+        if self.framing is not None:
+            out["framing"] = {"extent": self.framing.extent, "centre_x": self.framing.centre_x,
+                              "centre_y": self.framing.centre_y}
+        if self.transform is not None:
+            out["photo_to_input"] = self.transform.to_dict()
+        return out
+
+
+def estimate_cameras(net, images: torch.Tensor) -> list[InputCamera]:
+    """The ViewHead's camera of (B, 4, S, S) RGBA images (``net.camera``, in eval mode).
+
+    Raises:
+        ValueError when the network has no ViewHead.
+    """
+    head = getattr(net, "camera", None)
+    if head is None:
+        raise ValueError("this checkpoint has no camera head (model.camera), so it cannot estimate the input camera")
+    device = next(head.parameters()).device
+    est = head.estimate(images.to(device))
+    probs, views, framing = est.probabilities.cpu(), est.views.cpu(), est.framing.float().cpu()
+    return [InputCamera(view=float(v), source="estimated", probability=float(p[v]),
+                        framing=Framing(*(float(x) for x in f)))
+            for v, p, f in zip(views.tolist(), probs, framing)]
+
+
+def mesh_in_camera_frame(mesh, camera: InputCamera):
+    """A copy of a trimesh.Trimesh moved into the camera's frame (``InputCamera.world_to_camera``),
+    its faces re-wound where the transform mirrors, so that normals still point out."""
+    m = mesh.copy()
+    matrix = camera.world_to_camera()
+    m.vertices = m.vertices @ matrix[:3, :3].T + matrix[:3, 3]
+    if np.linalg.det(matrix[:3, :3]) < 0:
+        m.faces = m.faces[:, ::-1].copy()
+    return m
+
+
+__all__ = ["InputCamera", "estimate_cameras", "mesh_in_camera_frame", "view_of_azimuth",
+           "NMR_DISTANCE", "NMR_ELEVATION_DEG", "NMR_FOV_DEG"]

@@ -1,0 +1,34 @@
+"""The photo benchmark's photos (benchmarks.photo_inference): JPEGs with no alpha, the object scaled
+by 0.8 to 1.2 and moved by up to 10% of the image, that svr.infer's reading and framing put back
+where the render had it."""
+from __future__ import annotations
+
+import io
+
+import numpy as np
+from PIL import Image
+
+from benchmarks.photo_inference import CANVAS, make_photo
+from svr.inference.framing import bounding_box, frame_image, measure_framing
+from svr.inference.images import read_rgba
+
+
+def test_photos_are_moved_scaled_jpegs_that_framing_puts_back(tmp_path):
+    yy, xx = np.mgrid[:64, :64]
+    alpha = np.where(((yy - 34) / 14.0) ** 2 + ((xx - 30) / 20.0) ** 2 < 1, 255, 0).astype(np.uint8)
+    render = np.stack([np.full((64, 64), 90, np.uint8)] * 3 + [alpha])
+    rng = np.random.default_rng(3)
+    for k in range(4):
+        data, scale = make_photo(render, rng)
+        photo = Image.open(io.BytesIO(data))
+        assert photo.format == "JPEG" and photo.mode == "RGB" and photo.size == (CANVAS, CANVAS)
+        assert 0.8 <= scale <= 1.2
+        path = tmp_path / f"p{k}.jpg"
+        path.write_bytes(data)
+        rgba = read_rgba(path)  # the white background removed
+        left, top, right, bottom = bounding_box(rgba[..., 3] >= 128)
+        assert 2 * scale - 0.1 <= (right - left) / 40 <= 2 * scale + 0.1  # 40 pixels wide in the render, 2x
+        assert abs((left + right) / 2 - CANVAS / 2) <= 0.1 * CANVAS + 2 * scale * 2 + 2  # its centre is 2 off
+        framed, _ = frame_image(rgba, str(path), 64, measure_framing(alpha[None]))
+        back = bounding_box(framed[..., 3] >= 128)
+        assert np.allclose(back, bounding_box(alpha >= 128), atol=1.0)  # within a pixel of the render's
