@@ -212,7 +212,7 @@ class _FusedStage2(torch.autograd.Function):
 
 def shade_fused(backend: str, grid: SDFGrid, rays: ShadingRays, scene: Scene) -> Shading:
     """Stage 2 fused (``backend`` "cpu" or "cuda", the grid's device): what ``shade_reference``
-    computes, with the conservative hit point only.
+    computes, with the conservative hit point and the paper's gradient only.
 
     Returns:
         Shading of the R rays, differentiable w.r.t. ``grid.values``.
@@ -220,6 +220,9 @@ def shade_fused(backend: str, grid: SDFGrid, rays: ShadingRays, scene: Scene) ->
     if scene.intersection != "conservative":
         raise ValueError("the fused stage 2 has only the conservative intersection; use stage2='reference' "
                          f"for intersection={scene.intersection!r}")
+    if scene.needs_grazing():
+        raise ValueError("the fused stage 2 has only the paper's gradient; use stage2='reference' for "
+                         f"gradient={scene.gradient!r}")
     # The march settings do not matter here; march_params packs the grid's box and resolution with them.
     params, iparams = march_params(grid, TraceSettings())
     sparams, sflags_host, lights = scene_params(grid, scene, rays.pixels)

@@ -35,6 +35,8 @@ def shading_rays(trace: MarchResult, cameras: Cameras, dtype: torch.dtype, devic
         pixel_angle=cams.pixel_angle.contiguous(),
         eyes=cams.eye.contiguous(),
         pixels=h * w,
+        graze_t=None if trace.graze_t is None else trace.graze_t.reshape(-1).contiguous(),
+        graze_gap=None if trace.graze_gap is None else trace.graze_gap.reshape(-1).contiguous(),
     )
 
 
@@ -44,17 +46,21 @@ def shade_trace(grid: SDFGrid, cameras: Cameras, trace: MarchResult, scene: Scen
 
     Args:
         grid: the B_g grids ``trace`` was marched through; cameras: its B_c cameras.
-        trace: ``sphere_trace(grid, cameras, ...)``.
-        scene: effects, lights, material, background, intersection.
+        trace: ``sphere_trace(grid, cameras, ...)``, with ``grazing=True`` for the visibility gradient.
+        scene: effects, lights, material, background, intersection, gradient.
         stage2: "reference", the PyTorch stage 2 (renderer/shading.py); "fused", one kernel forward
-            and one backward (renderer/fused.py; the grid's device must have the fused kernels, and
-            the intersection must be the conservative one); "auto", fused after a fused march with
-            the conservative intersection, else the reference.
+            and one backward (renderer/fused.py; the grid's device must have the fused kernels, the
+            intersection must be the conservative one and the gradient the paper's); "auto", fused
+            after a fused march with the conservative intersection and the paper's gradient, else
+            the reference.
     Returns:
         RenderOutput with (B_c, H, W) maps, differentiable w.r.t. ``grid.values``.
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
+    if scene.needs_grazing() and trace.graze_gap is None:
+        raise ValueError("trace has no grazing points, which gradient='visibility' needs: march it with "
+                         "sphere_trace(..., grazing=True)")
     backend = resolve_stage2(stage2, trace.backend, scene, grid.device)
     rays = shading_rays(trace, cameras, grid.dtype, grid.device)
     if backend is None:
