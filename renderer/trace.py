@@ -45,8 +45,6 @@ def sphere_trace(
         settings: march settings.
         backend: "auto" (fused kernel for the device, else reference), "reference", "cpu", "cuda".
         grazing: also find each ray's grazing point (``Scene(gradient="visibility")`` needs them).
-            Only the reference march finds them so far: "auto" then marches with it, "cpu" and
-            "cuda" raise.
     Returns:
         MarchResult with (B_c, H, W) maps.
     """
@@ -64,11 +62,6 @@ def sphere_trace(
     b, h, w, _ = directions.shape
     n = h * w
     chosen = resolve_backend(backend, grid.device)
-    if grazing and chosen != "reference":
-        if backend != "auto":
-            raise ValueError(f"backend={backend!r} cannot find grazing points yet (grazing=True); "
-                             "use 'auto' or 'reference'")
-        chosen = "reference"
     ray_grid = gidx.repeat_interleave(n)
     ray_pix = cams.pixel_angle.repeat_interleave(n)
     o = origins.reshape(-1, 3)
@@ -76,7 +69,7 @@ def sphere_trace(
     if chosen == "reference":
         out = march_reference(grid, o, d, ray_grid, ray_pix, settings, grazing)
     else:
-        out = march_fused(chosen, grid, o, d, ray_grid, ray_pix, settings, check_indices=False)
+        out = march_fused(chosen, grid, o, d, ray_grid, ray_pix, settings, check_indices=False, grazing=grazing)
     t = out.t.reshape(b, h, w)
     return MarchResult(
         hit=out.hit.reshape(b, h, w),

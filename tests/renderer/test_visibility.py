@@ -1,5 +1,6 @@
-"""Visibility gradients (``Scene(gradient="visibility")``): the grazing points the reference march
-finds, the routing of such renders, and the image gradient checked against finite differences of a
+"""Visibility gradients (``Scene(gradient="visibility")``): the grazing points the marches find
+(the reference, and the fused CPU kernel against it), the routing of such renders, and the image
+gradient checked against finite differences of a
 supersampled render, the derivative of the anti-aliased image, on scenes whose edges include
 self-occlusion edges: a sphere partly in front of another, a torus seen nearly edge-on, a box with
 a dent seen obliquely.
@@ -19,8 +20,11 @@ from __future__ import annotations
 import pytest
 import torch
 
-from renderer import Cameras, DirectionalLight, SDFGrid, Scene, TraceSettings, render, shade_trace, sphere_trace
+from renderer import (Cameras, DirectionalLight, SDFGrid, Scene, TraceSettings, backend_available, render,
+                      shade_trace, sphere_trace)
+from renderer.fused import march_fused
 from renderer.reference import march_reference
+from renderer.trace import camera_grid_index
 
 from .analytic import sphere_sdf
 
@@ -209,6 +213,27 @@ def test_no_grazing_points_from_inside_or_by_default():
     assert plain.graze_t is None and plain.graze_gap is None
 
 
+@pytest.mark.skipif(not backend_available("cpu")[0], reason="numba is unavailable")
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("settings", [TraceSettings(), SETTINGS], ids=["footprint", "fixed"])
+def test_fused_march_finds_the_reference_grazing_points(dtype, settings):
+    """The CPU kernel's grazing points are the reference march's, bit for bit (the same samples in
+    the same order and dtype), on every scene of this file seen from two sides; without grazing it
+    marches as before."""
+    for fn, theta, eye in CASES.values():
+        grid = SDFGrid(fn(_grid_points().to(dtype), torch.tensor(theta, dtype=dtype)))
+        cams = Cameras.look_at([eye, (1.5, 1.0, -1.8)], fov_deg=40, image_size=24, dtype=dtype)
+        o, d = (x.reshape(-1, 3) for x in cams.rays())
+        gi = camera_grid_index(grid, cams).repeat_interleave(24 * 24)
+        pix = cams.pixel_angle.repeat_interleave(24 * 24)
+        ref = march_reference(grid, o, d, gi, pix, settings, grazing=True)
+        fused = march_fused("cpu", grid, o, d, gi, pix, settings, grazing=True)
+        assert torch.equal(fused.hit, ref.hit) and torch.isfinite(ref.graze_gap).sum() > 100
+        assert torch.equal(fused.graze_gap, ref.graze_gap) and torch.equal(fused.graze_t, ref.graze_t)
+        plain = march_fused("cpu", grid, o, d, gi, pix, settings)
+        assert plain.graze_gap is None and torch.equal(plain.t, fused.t) and torch.equal(plain.steps, fused.steps)
+
+
 def test_visibility_changes_gradients_not_values():
     """The edge term is zero in value: the same image, a different gradient, and the difference
     only at the band's pixels."""
@@ -226,14 +251,22 @@ def test_visibility_changes_gradients_not_values():
 
 
 def test_visibility_routing():
-    """A visibility render marches and shades with the PyTorch specification; asking for a fused
-    stage by name raises rather than giving the paper's gradient."""
-    grid = SDFGrid.from_function(sphere_sdf(0.5), 16)
-    cams = Cameras.look_at([[0.0, 0.0, 2.5]], fov_deg=40, image_size=8)
+    """A visibility render shades with the PyTorch stage 2 after whichever march (the same image and
+    gradient after the fused one as after the reference); asking for the fused stage 2 by name
+    raises rather than giving the paper's gradient."""
+    values = SDFGrid.from_function(sphere_sdf(0.5), 16, dtype=DT).values.requires_grad_(True)
+    grid = SDFGrid(values)
+    cams = Cameras.look_at([[0.0, 0.0, 2.5], [2.0, 1.0, 1.0]], fov_deg=40, image_size=12, dtype=DT)
     scene = Scene(gradient="visibility")
-    assert render(grid, cams, scene).trace.backend == "reference"
-    with pytest.raises(ValueError, match="grazing"):
-        render(grid, cams, scene, backend="cpu")
+    images, grads = [], []
+    for backend in ("reference", "auto"):
+        out = render(grid, cams, scene, backend=backend)
+        images.append(out.image)
+        grads.append(torch.autograd.grad(out.image.sum(), values)[0])
+    if backend_available("cpu")[0]:
+        assert out.trace.backend == "cpu"
+    torch.testing.assert_close(images[1], images[0], atol=1e-12, rtol=0.0)
+    torch.testing.assert_close(grads[1], grads[0], atol=1e-9, rtol=0.0)
     trace = sphere_trace(grid, cams, grazing=True)
     with pytest.raises(ValueError, match="gradient='visibility'"):
         shade_trace(grid, cams, trace, scene, stage2="fused")
