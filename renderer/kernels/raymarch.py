@@ -451,20 +451,21 @@ def march_block(start, end, fs, ist, corners, values, params, iparams, origins, 
                 f, sampled_phase, sampled_ts, fs[F_T, k], fs[F_BEST_F, k], fs[F_BEST_T, k], fs[F_SIGN, k],
                 fs[F_T0, k], fs[F_T_FAR, k], ist[I_STEPS, k], ist[I_COUNT, k], ist[I_HIT, k],
                 pixel_angle[r], params, iparams)
-            last_f, last_t, falling, graze_gap, graze_t = ray_graze(
-                sampled_phase, f, sampled_ts, sign, fs[F_LAST_F, k], fs[F_LAST_T, k], ist[I_FALLING, k],
-                fs[F_GRAZE_GAP, k], fs[F_GRAZE_T, k], pixel_angle[r], params, iparams)
-            fs[F_LAST_F, k] = last_f
-            fs[F_LAST_T, k] = last_t
-            ist[I_FALLING, k] = falling
-            fs[F_GRAZE_GAP, k] = graze_gap
-            fs[F_GRAZE_T, k] = graze_t
+            if iparams[GRAZING] != 0:  # (the lanes' stores cost the plain march a few per cent)
+                last_f, last_t, falling, graze_gap, graze_t = ray_graze(
+                    sampled_phase, f, sampled_ts, sign, fs[F_LAST_F, k], fs[F_LAST_T, k], ist[I_FALLING, k],
+                    fs[F_GRAZE_GAP, k], fs[F_GRAZE_T, k], pixel_angle[r], params, iparams)
+                fs[F_LAST_F, k] = last_f
+                fs[F_LAST_T, k] = last_t
+                ist[I_FALLING, k] = falling
+                fs[F_GRAZE_GAP, k] = graze_gap
+                fs[F_GRAZE_T, k] = graze_t
             if phase >= DONE:
                 ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
                 dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
                 ex, ey, ez = ray_extreme(phase, best_t, ox, oy, oz, dx, dy, dz, params)
                 _write(r, t, hit, ex, ey, ez, best_t, steps, t_out, hit_out, extreme_out, t_extreme_out, steps_out)
-                _write_graze(r, graze_gap, graze_t, iparams, graze_out)
+                _write_graze(r, fs[F_GRAZE_GAP, k], fs[F_GRAZE_T, k], iparams, graze_out)
                 next_ray, got = _start_lane(k, fs, ist, next_ray, end, params, iparams, origins, directions,
                                             t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out)
                 if not got:
