@@ -131,15 +131,13 @@ def resolve_stage2(stage2: str, march_backend: str, scene: Scene, device: torch.
     Args:
         stage2: "reference"; "fused" (raises where it cannot run); "auto": fused after a fused
             march (the reference march means the whole reference pipeline) with the conservative
-            intersection and the paper's gradient, where the kernels work (else one warning per
-            process).
+            intersection, where the kernels work (else one warning per process).
         march_backend: the backend that marched (``MarchResult.backend``).
     """
     if stage2 not in STAGE2:
         raise ValueError(f"stage2 must be one of {STAGE2}, got {stage2!r}")
     if stage2 == "reference" or (stage2 == "auto" and (march_backend == "reference"
-                                                       or scene.intersection != "conservative"
-                                                       or scene.needs_grazing())):
+                                                       or scene.intersection != "conservative")):
         return None
     backend = "cuda" if device.type == "cuda" else "cpu"
     ok, why = stage2_available(backend)

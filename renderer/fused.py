@@ -224,8 +224,8 @@ def shade_fused(backend: str, grid: SDFGrid, rays: ShadingRays, scene: Scene) ->
         raise ValueError("the fused stage 2 has only the conservative intersection; use stage2='reference' "
                          f"for intersection={scene.intersection!r}")
     if scene.needs_grazing():
-        raise ValueError("the fused stage 2 has only the paper's gradient; use stage2='reference' for "
-                         f"gradient={scene.gradient!r}")
+        raise ValueError("the fused stage 2 has only the paper's gradient (renderer/stage2.py adds the "
+                         f"visibility gradient's edge term); got gradient={scene.gradient!r}")
     # The march settings do not matter here; march_params packs the grid's box and resolution with them.
     params, iparams = march_params(grid, TraceSettings())
     sparams, sflags_host, lights = scene_params(grid, scene, rays.pixels)

@@ -23,8 +23,8 @@ def render(
     With a fused march (``backend`` "cpu", "cuda", or "auto" where the kernels are available) the
     differentiable stage is fused too (renderer/fused.py), except for the exact intersection;
     ``backend="reference"`` runs the PyTorch specification of both stages. With
-    ``scene.gradient="visibility"`` the march also finds grazing points and stage 2 is the
-    PyTorch one (the fused stage 2 has only the paper's gradient so far).
+    ``scene.gradient="visibility"`` the march also finds grazing points, and the edge term of the
+    gradient is PyTorch's on either path (renderer/stage2.py).
 
     Args:
         grid: B_g grids. cameras: B_c cameras, a multiple of B_g; camera c sees grid

@@ -17,6 +17,8 @@ subject): what differs between the two gradients is then the edges.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 import torch
 
@@ -250,31 +252,39 @@ def test_visibility_changes_gradients_not_values():
     assert outs["paper"].trace.graze_gap is None
 
 
-def test_visibility_routing():
-    """A visibility render shades with the PyTorch stage 2 after whichever march (the same image and
-    gradient after the fused one as after the reference); asking for the fused stage 2 by name
-    raises rather than giving the paper's gradient."""
+def test_visibility_on_both_paths():
+    """A visibility render is the same, image and gradient, after the fused march and stage 2 (the
+    kernels' paper passes plus the PyTorch edge term) as through the PyTorch specification."""
     values = SDFGrid.from_function(sphere_sdf(0.5), 16, dtype=DT).values.requires_grad_(True)
     grid = SDFGrid(values)
     cams = Cameras.look_at([[0.0, 0.0, 2.5], [2.0, 1.0, 1.0]], fov_deg=40, image_size=12, dtype=DT)
-    scene = Scene(gradient="visibility")
-    images, grads = [], []
+    scene = Scene(gradient="visibility", camera_light=0.5, albedo=(0.9, 0.6, 0.3))
+    images, grads, traces = [], [], []
     for backend in ("reference", "auto"):
         out = render(grid, cams, scene, backend=backend)
         images.append(out.image)
-        grads.append(torch.autograd.grad(out.image.sum(), values)[0])
+        traces.append(out.trace)
+        weights = torch.linspace(0.5, 1.5, out.image.numel(), dtype=DT).reshape(out.image.shape)
+        grads.append(torch.autograd.grad((weights * out.image).sum(), values)[0])
     if backend_available("cpu")[0]:
-        assert out.trace.backend == "cpu"
+        assert traces[1].backend == "cpu"
+    assert torch.equal(traces[1].graze_gap, traces[0].graze_gap)
     torch.testing.assert_close(images[1], images[0], atol=1e-12, rtol=0.0)
     torch.testing.assert_close(grads[1], grads[0], atol=1e-9, rtol=0.0)
-    trace = sphere_trace(grid, cams, grazing=True)
-    with pytest.raises(ValueError, match="gradient='visibility'"):
-        shade_trace(grid, cams, trace, scene, stage2="fused")
+    paper = render(grid, cams, replace(scene, gradient="paper"))
+    (paper_grad,) = torch.autograd.grad((weights * paper.image).sum(), values)
+    assert (grads[1] - paper_grad).abs().max() > 0.1  # the edge term is there
+
+
+def test_visibility_needs_grazing_points():
+    grid = SDFGrid.from_function(sphere_sdf(0.5), 16)
+    cams = Cameras.look_at([[0.0, 0.0, 2.5]], fov_deg=40, image_size=8)
+    scene = Scene(gradient="visibility")
     with pytest.raises(ValueError, match="grazing"):
-        shade_trace(grid, cams, sphere_trace(grid, cams, backend="reference"), scene)
-    # Without the image, nothing reads grazing points: the render stays on the fused path.
-    silhouette = Scene(effects=("silhouette",), gradient="visibility")
-    assert not silhouette.needs_grazing()
+        shade_trace(grid, cams, sphere_trace(grid, cams), scene)
+    # Without the image, nothing reads grazing points: render does not ask the march for them.
+    assert not Scene(effects=("silhouette",), gradient="visibility").needs_grazing()
+    assert render(grid, cams, Scene(effects=("silhouette",), gradient="visibility")).trace.graze_gap is None
 
 
 @pytest.mark.parametrize("kwargs", [{"gradient": "exact"}, {"visibility_band": 0.0},
