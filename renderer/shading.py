@@ -152,8 +152,8 @@ def edge_gradient(grid: SDFGrid, rays: ShadingRays, image: torch.Tensor, scene: 
     passing side, half the band from the edge on average, and one sample per pixel gives a band of
     about one pixel all or nothing where an edge runs along the pixel grid) and without noise; it
     covers the outline against the background and self-occlusion edges (the rim of a concavity, a
-    part in front of another) alike. A tent or a hat over the band instead of the box measured no
-    better against finite differences (tests/renderer/test_visibility.py).
+    part in front of another) alike. A tent or a hat over the band instead of the box traded one
+    scene's error against finite differences for another's (tests/renderer/test_visibility.py).
 
     Args:
         rays: R rays marched with grazing points. image: (R, C) the rendered colours, detached.

@@ -1,9 +1,8 @@
 """Visibility gradients (``Scene(gradient="visibility")``): the grazing points the marches find
-(the reference, and the fused CPU kernel against it), the routing of such renders, and the image
-gradient checked against finite differences of a
-supersampled render, the derivative of the anti-aliased image, on scenes whose edges include
-self-occlusion edges: a sphere partly in front of another, a torus seen nearly edge-on, a box with
-a dent seen obliquely.
+(the reference, and the fused CPU kernel against it), the same render on the fused and the PyTorch
+paths, and the image gradient checked against finite differences of a supersampled render, the
+derivative of the anti-aliased image, on scenes whose edges include self-occlusion edges: a
+sphere partly in front of another, a torus seen nearly edge-on, a box with a dent seen obliquely.
 
 How the gradients are compared: each scene is a smooth function of two parameters (a sphere's
 centre or radius, ...) sampled onto a 48^3 grid; the image (32^2) is weighed by 64 Gaussian windows
@@ -142,9 +141,11 @@ def occlusion_windows(out, windows: torch.Tensor) -> torch.Tensor:
 # in the pixels the edge crosses; and, inside the outline, the derivative of the shading at the
 # pixel's centre where the surface turns away (the torus's rim), not its mean over the pixel, which
 # both gradients share (there the paper's is the closer of the two near the torus's occlusion
-# edge). Sigma-5 windows, which see less of where within a few pixels the gradient sits: spheres
-# 0.18, torus 0.27 (visibility, relative). A tent or hat kernel over the band instead of the box
-# gave, over all windows, 0.21-0.29 (tent) and 0.13-0.54 (hat) where the box gave 0.12-0.31.
+# edge). With sigma-5 windows the relative errors are about the same: visibility 0.24 / 0.14
+# (spheres), 0.27 / 0.34 (torus), 0.08 (dent); paper 0.81 / 0.56, 0.40 / 0.41, 0.30. A tent kernel
+# over the band instead of the box gave 0.08-0.29 over all windows (better on the torus and the
+# dent) but 1.04-1.11 near the spheres' occlusion edge (box 0.63-0.66); a hat 0.13-0.54; the box
+# 0.12-0.31.
 # The dent's sideways shift (dented_box's second parameter) is left out: its change is mostly the
 # dent's crease moving across the shading, which neither gradient follows (relative error paper
 # 0.93, visibility 0.84) and which these finite differences resolve poorly (0.18 between steps
