@@ -57,11 +57,13 @@ def march_backends(device: torch.device) -> dict[str, str]:
     return {"reference": "reference", "fused": fused_backend(device)}
 
 
-def render_variants(device: torch.device) -> dict[str, tuple[str, str]]:
-    """The (march backend, stage 2) behind each render column label: the reference pipeline, the
-    fused march with the PyTorch stage 2, and both stages fused."""
+def render_variants(device: torch.device) -> dict[str, tuple[str, str, str]]:
+    """The (march backend, stage 2, gradient) behind each render column label: the reference
+    pipeline, the fused march with the PyTorch stage 2, both stages fused (the paper's gradient),
+    and the visibility gradient (the fused march with grazing points, the PyTorch stage 2)."""
     fused = fused_backend(device)
-    return {"reference": ("reference", "auto"), "fused_march": (fused, "reference"), "fused": (fused, "auto")}
+    return {"reference": ("reference", "auto", "paper"), "fused_march": (fused, "reference", "paper"),
+            "fused": (fused, "auto", "paper"), "visibility": (fused, "auto", "visibility")}
 
 
 def torus_grids(batch: int, n: int, seed: int = 0) -> torch.Tensor:
@@ -86,15 +88,18 @@ def scene_for(cfg: Config, seed: int = 0) -> tuple[torch.Tensor, Cameras]:
     return torus_grids(cfg.batch, cfg.grid, seed), cams
 
 
-def forward_backward(values: torch.Tensor, cams: Cameras, backend: str, stage2: str = "auto") -> None:
+def forward_backward(values: torch.Tensor, cams: Cameras, backend: str, stage2: str = "auto",
+                     gradient: str = "paper") -> None:
     """One differentiable render of every camera and the backward pass into the grid values
-    (``render``; with ``stage2`` other than "auto", its two stages called with that stage 2)."""
+    (``render`` with ``Scene(gradient=gradient)``; with ``stage2`` other than "auto", its two
+    stages called with that stage 2)."""
     v = values.detach().requires_grad_(True)
     grid = SDFGrid(v)
+    scene = Scene(gradient=gradient)
     if stage2 == "auto":
-        out = render(grid, cams, Scene(), backend=backend)
+        out = render(grid, cams, scene, backend=backend)
     else:
-        out = shade_trace(grid, cams, sphere_trace(grid, cams, backend=backend), Scene(), stage2=stage2)
+        out = shade_trace(grid, cams, sphere_trace(grid, cams, backend=backend), scene, stage2=stage2)
     loss = out.image.mean() + out.silhouette.mean() + out.depth.mean()
     loss.backward()
     if v.is_cuda:
@@ -117,9 +122,9 @@ def time_config(cfg: Config, repeats: int, device: torch.device = torch.device("
     for label, backend in march_backends(device).items():
         grid = SDFGrid(values.to(device))
         fns[f"march_{label}"] = lambda grid=grid, backend=backend: trace_synced(grid, cams, backend)
-    for label, (backend, stage2) in render_variants(device).items():
+    for label, (backend, stage2, gradient) in render_variants(device).items():
         v = values.to(device)
-        fns[f"render_{label}"] = lambda v=v, b=backend, s2=stage2: forward_backward(v, cams, b, s2)
+        fns[f"render_{label}"] = lambda v=v, b=backend, s2=stage2, g=gradient: forward_backward(v, cams, b, s2, g)
     if device.type == "cuda":  # the host's fused CPU kernels on the same scenes
         grid = SDFGrid(values)
         fns["march_host"] = lambda: trace_synced(grid, cams, "cpu")
@@ -131,46 +136,48 @@ def time_config(cfg: Config, repeats: int, device: torch.device = torch.device("
     return row
 
 
-def measure_cuda_memory(cfg: Config, backend: str, stage2: str, device: torch.device) -> dict[str, float | str]:
+def measure_cuda_memory(cfg: Config, backend: str, stage2: str, gradient: str,
+                        device: torch.device) -> dict[str, float | str]:
     """Peak extra GPU memory (MiB) of one forward + backward: what the caching allocator handed out
     beyond what was allocated before it."""
     values, cams = scene_for(cfg)
     values = values.to(device)
-    forward_backward(values, cams, backend, stage2)  # warm-up: kernels loaded, workspaces made
+    forward_backward(values, cams, backend, stage2, gradient)  # warm-up: kernels loaded, workspaces made
     torch.cuda.synchronize(device)
     torch.cuda.reset_peak_memory_stats(device)
     before = torch.cuda.memory_allocated(device)
-    forward_backward(values, cams, backend, stage2)
+    forward_backward(values, cams, backend, stage2, gradient)
     return {"peak_mib": (torch.cuda.max_memory_allocated(device) - before) / 2**20,
             "method": "torch.cuda.max_memory_allocated"}
 
 
 # ---------------------------------------------------------------------------- memory (subprocess)
-def measure_memory(cfg: Config, backend: str, stage2: str) -> dict[str, float | str]:
+def measure_memory(cfg: Config, backend: str, stage2: str, gradient: str) -> dict[str, float | str]:
     """Peak extra resident memory (MiB) of one forward + backward, in this (fresh) process."""
     import gc
     import resource
 
     values, cams = scene_for(cfg)
-    forward_backward(values[:1].clone(), Cameras.look_at([[0.0, 0.0, 2.5]], image_size=8), backend, stage2)
+    forward_backward(values[:1].clone(), Cameras.look_at([[0.0, 0.0, 2.5]], image_size=8), backend, stage2,
+                     gradient)
     gc.collect()
     before = reset_peak_rss()
     if before is not None:
-        forward_backward(values, cams, backend, stage2)
+        forward_backward(values, cams, backend, stage2, gradient)
         peak = peak_rss_kib()
         method = "VmHWM"
     else:
         before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-        forward_backward(values, cams, backend, stage2)
+        forward_backward(values, cams, backend, stage2, gradient)
         peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
         method = "ru_maxrss"
     return {"peak_mib": (peak - before) / 1024.0, "method": method}
 
 
-def memory_in_subprocess(cfg: Config, backend: str, stage2: str, threads: int | None,
+def memory_in_subprocess(cfg: Config, backend: str, stage2: str, gradient: str, threads: int | None,
                          torch_threads: int | None = None) -> dict[str, float | str]:
     cmd = [sys.executable, "-m", "benchmarks.renderer_speed", "--memory-probe", f"{cfg.image},{cfg.batch},{cfg.grid}",
-           f"{backend},{stage2}"]
+           f"{backend},{stage2},{gradient}"]
     if threads:
         cmd += ["--threads", str(threads)]
     if torch_threads is not None:
@@ -192,15 +199,18 @@ def table(rows: list[tuple[Config, dict]]) -> str:
     """The wall-clock table (medians), with speed-ups and peak memory."""
     head = ("| config | rays | hits | march ref (ms) | march fused (ms) | march speed-up | fused rays/s "
             "| f+b reference (ms) | f+b fused march + PyTorch stage 2 (ms) | f+b fused (ms) | fused per image (ms) "
-            "| f+b speed-up vs reference | fused f+b / fused march "
-            "| peak mem f+b ref / fused march + PyTorch stage 2 / fused (MiB) |")
+            "| f+b speed-up vs reference | fused f+b / fused march | f+b visibility gradient (ms) "
+            "| visibility / fused f+b "
+            "| peak mem f+b ref / fused march + PyTorch stage 2 / fused / visibility (MiB) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
             _march_cells(cfg, r, 1) + f" | {r['render_reference']:.1f} | {r['render_fused_march']:.1f} "
             f"| {r['render_fused']:.1f} | {r['render_fused'] / cfg.batch:.2f} "
             f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['render_fused'] / r['march_fused']:.2f} "
-            f"| {r['mem_reference']:.0f} / {r['mem_fused_march']:.0f} / {r['mem_fused']:.0f} |")
+            f"| {r['render_visibility']:.1f} | {r['render_visibility'] / r['render_fused']:.2f} "
+            f"| {r['mem_reference']:.0f} / {r['mem_fused_march']:.0f} / {r['mem_fused']:.0f} "
+            f"/ {r['mem_visibility']:.0f} |")
     return "\n".join(lines)
 
 
@@ -209,7 +219,8 @@ def cuda_table(rows: list[tuple[Config, dict]]) -> str:
     head = ("| config | rays | hits | march ref CUDA (ms) | march fused CUDA (ms) | speed-up | fused CUDA rays/s "
             "| march fused CPU (ms) | CUDA vs CPU | f+b ref CUDA (ms) | f+b fused march + PyTorch stage 2 CUDA (ms) "
             "| f+b fused CUDA (ms) | speed-up | fused f+b / fused march | f+b fused CPU (ms) | CUDA vs CPU "
-            "| peak GPU mem f+b ref / fused march + PyTorch stage 2 / fused (MiB) |")
+            "| f+b visibility gradient CUDA (ms) "
+            "| peak GPU mem f+b ref / fused march + PyTorch stage 2 / fused / visibility (MiB) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
@@ -218,7 +229,9 @@ def cuda_table(rows: list[tuple[Config, dict]]) -> str:
             f"| {r['render_fused_march']:.2f} | {r['render_fused']:.2f} "
             f"| {r['render_reference'] / r['render_fused']:.1f}x | {r['render_fused'] / r['march_fused']:.2f} "
             f"| {r['render_host']:.1f} | {r['render_host'] / r['render_fused']:.1f}x "
-            f"| {r['mem_reference']:.0f} / {r['mem_fused_march']:.0f} / {r['mem_fused']:.0f} |")
+            f"| {r['render_visibility']:.2f} "
+            f"| {r['mem_reference']:.0f} / {r['mem_fused_march']:.0f} / {r['mem_fused']:.0f} "
+            f"/ {r['mem_visibility']:.0f} |")
     return "\n".join(lines)
 
 
@@ -226,14 +239,15 @@ def cpu_table(rows: list[tuple[Config, dict]]) -> str:
     """The same runs in CPU time (all threads of the process; medians): less sensitive to a busy
     machine than wall time, but blind to how well the work spreads over the cores."""
     head = ("| config | march ref (CPU ms) | march fused (CPU ms) | ratio | f+b reference (CPU ms) "
-            "| f+b fused march + PyTorch stage 2 (CPU ms) | f+b fused (CPU ms) | ratio ref / fused |")
+            "| f+b fused march + PyTorch stage 2 (CPU ms) | f+b fused (CPU ms) | ratio ref / fused "
+            "| f+b visibility gradient (CPU ms) |")
     lines = [head, "|" + "---|" * (head.count("|") - 1)]
     for cfg, r in rows:
         lines.append(
             f"| {cfg.name} | {r['march_reference_cpu']:.1f} | {r['march_fused_cpu']:.1f} "
             f"| {r['march_reference_cpu'] / r['march_fused_cpu']:.1f}x | {r['render_reference_cpu']:.1f} "
             f"| {r['render_fused_march_cpu']:.1f} | {r['render_fused_cpu']:.1f} "
-            f"| {r['render_reference_cpu'] / r['render_fused_cpu']:.1f}x |")
+            f"| {r['render_reference_cpu'] / r['render_fused_cpu']:.1f}x | {r['render_visibility_cpu']:.1f} |")
     return "\n".join(lines)
 
 
@@ -280,10 +294,12 @@ scenes:
 what is timed (medians over the repeats, after one warm-up that also loads the compiled kernels):
   march        renderer.sphere_trace (ray generation + the no-gradient march) per backend
   render f+b   a render + a scalar loss over image, silhouette and depth + backward() into the
-               grid values, three ways: render(backend="reference") (the PyTorch march and
+               grid values, four ways: render(backend="reference") (the PyTorch march and
                stage 2: the specification), the fused march with the PyTorch stage 2
                (sphere_trace + shade_trace(..., stage2="reference"): the pipeline before stage 2
-               was fused), and render with the fused kernels of both stages (the default)
+               was fused), render with the fused kernels of both stages (the default),
+               and render with Scene(gradient="visibility") (the fused march finding grazing
+               points, then the PyTorch stage 2 with the edge term: the visibility gradient's cost)
 
 --device cuda:
   Times the same calls on the GPU (the reference march on CUDA tensors against the fused CUDA
@@ -316,7 +332,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=None, help="torch and numba threads (default: all)")
     parser.add_argument("--torch-threads", type=int, default=None,
                         help="torch threads (default: --threads if given, else torch's default; 0: torch's default)")
-    parser.add_argument("--memory-probe", nargs=2, metavar=("IMAGE,BATCH,GRID", "BACKEND"), help=argparse.SUPPRESS)
+    parser.add_argument("--memory-probe", nargs=2, metavar=("IMAGE,BATCH,GRID", "BACKEND,STAGE2,GRADIENT"),
+                        help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     if args.repeats is not None and args.repeats < 1:
         raise ValueError(f"--repeats must be at least 1, got {args.repeats}")
@@ -335,8 +352,8 @@ def main(argv: list[str] | None = None) -> None:
         torch.set_num_threads(args.torch_threads)
     if args.memory_probe:
         image, batch, grid = (int(x) for x in args.memory_probe[0].split(","))
-        backend, stage2 = args.memory_probe[1].split(",")
-        print(json.dumps(measure_memory(Config(image, batch, grid), backend, stage2)))
+        backend, stage2, gradient = args.memory_probe[1].split(",")
+        print(json.dumps(measure_memory(Config(image, batch, grid), backend, stage2, gradient)))
         return
     device = torch.device(args.device)
     for backend in ("cpu", fused_backend(device)):
@@ -349,11 +366,11 @@ def main(argv: list[str] | None = None) -> None:
     for cfg in CUDA_CONFIGS if device.type == "cuda" else CONFIGS:
         print(f"timing {cfg.name} ...", file=sys.stderr, flush=True)
         row = time_config(cfg, repeats, device)
-        for label, (backend, stage2) in render_variants(device).items():
+        for label, (backend, stage2, gradient) in render_variants(device).items():
             if device.type == "cuda":
-                mem = measure_cuda_memory(cfg, backend, stage2, device)
+                mem = measure_cuda_memory(cfg, backend, stage2, gradient, device)
             else:
-                mem = memory_in_subprocess(cfg, backend, stage2, args.threads, args.torch_threads)
+                mem = memory_in_subprocess(cfg, backend, stage2, gradient, args.threads, args.torch_threads)
             row[f"mem_{label}"] = float(mem["peak_mib"])
             row["mem_method"] = mem["method"]
         rows.append((cfg, row))
@@ -387,7 +404,9 @@ def main(argv: list[str] | None = None) -> None:
             "- f+b: a render with the default Scene plus `backward()` into the grid values: reference = "
             "`render(backend=\"reference\")` (PyTorch march and stage 2), fused march + PyTorch stage 2 = "
             "the fused march with `shade_trace(stage2=\"reference\")` (the pipeline before stage 2 was "
-            "fused), fused = `render()` with both stages fused (renderer/fused.py), the default.\n"
+            "fused), fused = `render()` with both stages fused (renderer/fused.py), the default; visibility "
+            "gradient = `render()` with `Scene(gradient=\"visibility\")` (the fused march with grazing points, "
+            "the PyTorch stage 2 with the edge term).\n"
             f"- peak mem: the peak extra resident memory of one forward + backward in a fresh process "
             f"({method}; see the script's docstring).\n"
         )

@@ -1,6 +1,8 @@
 """A differentiable renderer for signed distance fields sampled on grids (SDFDiff, CVPR 2020), and
 its public API (``__all__``): sphere tracing finds where rays meet the surface without gradients,
-and only the local shading at the hits (and the soft silhouettes) is differentiable. Both stages
+and only the local shading at the hits (and the soft silhouettes) is differentiable, as in the
+paper, unless ``Scene(gradient="visibility")`` also gives the image the motion of its edges
+(renderer/shading.py, ``edge_gradient``). Both stages
 run as fused numba kernels (CPU or CUDA, ``renderer.fused`` over ``renderer.kernels``) where
 available; their plain-PyTorch versions (``renderer.reference``, ``renderer.shading``) are the
 specification, used by ``backend="reference"`` and as the fallback, and ``renderer.backends``

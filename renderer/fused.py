@@ -23,9 +23,10 @@ from .settings import TraceSettings
 FUSED_BACKENDS = kernels.FUSED_BACKENDS
 
 
-def march_params(grid: SDFGrid, settings: TraceSettings) -> tuple[torch.Tensor, torch.Tensor]:
+def march_params(grid: SDFGrid, settings: TraceSettings, grazing: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
     """The grid and the march settings packed for the kernels: ``params`` (grid dtype) and
-    ``iparams`` (int64), made on the host from the grid's host box and kept on its device."""
+    ``iparams`` (int64), made on the host from the grid's host box and kept on its device;
+    ``grazing``: whether the march finds grazing points."""
     m = kernels.load()
     dt = grid.dtype
     lo, hi = grid.host_box()
@@ -34,10 +35,10 @@ def march_params(grid: SDFGrid, settings: TraceSettings) -> tuple[torch.Tensor, 
     fixed = settings.threshold is not None
     consts = torch.tensor(
         [0.0, 1.0, TINY_DIRECTION, floor, settings.threshold_scale,
-         max(float(settings.threshold), floor) if fixed else 0.0, -settings.inner_depth], dtype=dt)
+         max(float(settings.threshold), floor) if fixed else 0.0, -settings.inner_depth, float("inf")], dtype=dt)
     # The same tensor expressions as the reference, so the kernels see bit-identical constants.
     params = torch.cat([lo, hi, grid.host_voxel_size(), (lo + hi) / 2, res - 1, res - 2, consts]).contiguous()
-    iparams = torch.tensor([*grid.resolution, settings.max_steps, settings.inner_steps, int(fixed)],
+    iparams = torch.tensor([*grid.resolution, settings.max_steps, settings.inner_steps, int(fixed), int(grazing)],
                            dtype=torch.int64)
     if params.numel() != m.N_PARAMS or iparams.numel() != m.N_IPARAMS:
         raise RuntimeError("renderer/fused.py: the parameter layout and renderer/kernels/raymarch.py disagree")
@@ -116,6 +117,7 @@ def march_fused(
     pixel_angle: torch.Tensor,
     settings: TraceSettings,
     check_indices: bool = True,
+    grazing: bool = False,
 ) -> MarchedRays:
     """Sphere-traces R rays with the fused kernel: the same contract as ``march_reference``.
 
@@ -129,6 +131,7 @@ def march_fused(
         settings: the march settings.
         check_indices: whether to check that ``grid_index`` lies in the grid batch (a min/max that
             waits for the GPU; ``sphere_trace`` makes the indices itself and skips it).
+        grazing: whether to find each ray's grazing point, as ``march_reference`` does.
     Returns:
         MarchedRays on the grid's device, detached.
     """
@@ -138,10 +141,10 @@ def march_fused(
         raise ValueError(f"backend={backend!r} cannot march a grid on device {grid.device}")
     _check_march_inputs(grid, origins, directions, grid_index, pixel_angle, settings, check_indices)
     dt = grid.dtype
-    params, iparams = march_params(grid, settings)
+    params, iparams = march_params(grid, settings, grazing)
     return kernels.march(backend, grid.values.detach().contiguous().reshape(-1), params, iparams,
                          origins.detach().to(dt).contiguous(), directions.detach().to(dt).contiguous(),
-                         grid_index.to(torch.int64).contiguous(), pixel_angle.detach().to(dt).contiguous())
+                         grid_index.to(torch.int64).contiguous(), pixel_angle.detach().to(dt).contiguous(), grazing)
 
 
 @dataclass(frozen=True)
@@ -212,7 +215,7 @@ class _FusedStage2(torch.autograd.Function):
 
 def shade_fused(backend: str, grid: SDFGrid, rays: ShadingRays, scene: Scene) -> Shading:
     """Stage 2 fused (``backend`` "cpu" or "cuda", the grid's device): what ``shade_reference``
-    computes, with the conservative hit point only.
+    computes, with the conservative hit point and the paper's gradient only.
 
     Returns:
         Shading of the R rays, differentiable w.r.t. ``grid.values``.
@@ -220,6 +223,9 @@ def shade_fused(backend: str, grid: SDFGrid, rays: ShadingRays, scene: Scene) ->
     if scene.intersection != "conservative":
         raise ValueError("the fused stage 2 has only the conservative intersection; use stage2='reference' "
                          f"for intersection={scene.intersection!r}")
+    if scene.needs_grazing():
+        raise ValueError("the fused stage 2 has only the paper's gradient (renderer/stage2.py adds the "
+                         f"visibility gradient's edge term); got gradient={scene.gradient!r}")
     # The march settings do not matter here; march_params packs the grid's box and resolution with them.
     params, iparams = march_params(grid, TraceSettings())
     sparams, sflags_host, lights = scene_params(grid, scene, rays.pixels)

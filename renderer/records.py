@@ -22,6 +22,11 @@ class MarchedRays:
         extreme: (R, 3) world, the closest approach of a miss or the deepest point behind a hit.
         t_extreme: (R,) the distance of ``extreme`` along the ray.
         steps: (R,) int32 SDF samples taken by the march.
+        graze_t, graze_gap: (R,) where the march was asked for grazing points (else None): the
+            distance along the ray of its grazing point, the sampled local minimum of the SDF before
+            the hit (or along the whole ray for a miss) with the smallest ``graze_gap``, the SDF there
+            minus the hit threshold, in pixel footprints (>= 0: the ray passed the surface there);
+            ``graze_gap`` is +inf where the ray has none (``graze_t`` is then 0).
     """
 
     t: torch.Tensor
@@ -29,6 +34,8 @@ class MarchedRays:
     extreme: torch.Tensor
     t_extreme: torch.Tensor
     steps: torch.Tensor
+    graze_t: Optional[torch.Tensor] = None
+    graze_gap: Optional[torch.Tensor] = None
 
 
 @dataclass(frozen=True)
@@ -48,6 +55,7 @@ class MarchResult:
         origins, directions: (B, H, W, 3) the rays (unit directions).
         grid_index: (B,) long, the grid each camera renders.
         backend: the backend that marched ("reference", "cpu" or "cuda").
+        graze_t, graze_gap: (B, H, W) the grazing points (see MarchedRays), None unless asked for.
     """
 
     hit: torch.Tensor
@@ -60,6 +68,8 @@ class MarchResult:
     directions: torch.Tensor
     grid_index: torch.Tensor
     backend: str
+    graze_t: Optional[torch.Tensor] = None
+    graze_gap: Optional[torch.Tensor] = None
 
 
 @dataclass(frozen=True)
@@ -78,6 +88,7 @@ class ShadingRays:
         pixel_angle: (B,) pixel footprint per unit distance, per camera.
         eyes: (B, 3) camera positions.
         pixels: H * W, the rays per camera.
+        graze_t, graze_gap: (R,) the grazing points (see MarchedRays), None unless marched for.
     """
 
     hit: torch.Tensor
@@ -91,6 +102,8 @@ class ShadingRays:
     pixel_angle: torch.Tensor
     eyes: torch.Tensor
     pixels: int
+    graze_t: Optional[torch.Tensor] = None
+    graze_gap: Optional[torch.Tensor] = None
 
     @property
     def count(self) -> int:

@@ -40,6 +40,7 @@ def march_reference(
     grid_index: torch.Tensor,
     pixel_angle: torch.Tensor,
     settings: TraceSettings,
+    grazing: bool = False,
 ) -> MarchedRays:
     """Sphere-traces R rays through ``grid``.
 
@@ -55,6 +56,12 @@ def march_reference(
        ``settings.threshold`` if given, else ``threshold_scale * t * pixel_angle`` (the pixel footprint),
        never below ``min_threshold`` (so every step makes progress). The sample with the smallest f
        is the closest approach (used for the silhouettes of misses).
+       With ``grazing``, a sample whose f is at most the previous one's and below the next one's is
+       a local minimum (the first sample never is): where the ray passes a surface without meeting
+       it, the rim of an occluder or an outline. Of these, the one with the smallest gap
+       ``(f - thr(t)) / footprint(t)`` (``footprint = max(t * pixel_angle, min_threshold)``) is the
+       ray's grazing point; a hit's last sample never is one, so a hit's grazing point lies in front
+       of what it hit. Rays with sign -1 have none.
     4. Hits with sign +1 then look for the smallest SDF along the rest of the ray (for the soft
        silhouette of hits): from the hit, step by ``max(|sdf|, thr)`` (a safe sphere-tracing step inside
        and outside the shape, so a ray that leaves a thin part goes on to what lies behind it), at most
@@ -69,6 +76,7 @@ def march_reference(
         origins, directions: (R, 3) world, directions of unit length, grid dtype.
         grid_index: (R,) long, which grid of the batch each ray reads.
         pixel_angle: (R,) pixel footprint per unit distance.
+        grazing: whether to find each ray's grazing point (visibility gradients, renderer/shading.py).
     Returns:
         MarchedRays (detached, the grid's dtype and device).
     """
@@ -101,6 +109,13 @@ def march_reference(
     sign = torch.ones(r, dtype=dt, device=dev)
     best_f = torch.full((r,), float("inf"), dtype=dt, device=dev)
     best_t = t.clone()
+    # Grazing points: the previous sample (f = -inf before the first, so it is never a minimum) and
+    # whether f fell to it.
+    graze_gap = torch.full((r,), float("inf"), dtype=dt, device=dev)
+    graze_t = torch.zeros(r, dtype=dt, device=dev)
+    last_f = torch.full((r,), float("-inf"), dtype=dt, device=dev)
+    last_t = t.clone()
+    falling = torch.zeros(r, dtype=torch.bool, device=dev)
 
     # Rays that miss the box: closest approach to the box centre, clamped into the box.
     centre = (lo + hi) / 2
@@ -125,6 +140,16 @@ def march_reference(
         best_t[active] = torch.where(better, ta, best_t[active])
         is_hit = f < thr(ta, pix[active])
         hit[active[is_hit]] = True
+        if grazing:
+            lf, lt = last_f[active], last_t[active]
+            foot = torch.clamp(lt * pix[active], min=floor)
+            gap = (lf - thr(lt, pix[active])) / foot
+            closer = falling[active] & (f > lf) & (gap < graze_gap[active])
+            graze_gap[active] = torch.where(closer, gap, graze_gap[active])
+            graze_t[active] = torch.where(closer, lt, graze_t[active])
+            falling[active] = f <= lf
+            last_f[active] = f
+            last_t[active] = ta
         t_next = ta + f
         t[active] = torch.where(is_hit, ta, t_next)
         going = (~is_hit) & (t_next <= t_far[active])
@@ -169,4 +194,10 @@ def march_reference(
     extreme[inside_miss] = o[inside_miss] + t0[inside_miss, None] * d[inside_miss]
     t_ext[inside_miss] = t0[inside_miss]
 
-    return MarchedRays(t=t, hit=hit, extreme=extreme, t_extreme=t_ext, steps=steps)
+    if not grazing:
+        return MarchedRays(t=t, hit=hit, extreme=extreme, t_extreme=t_ext, steps=steps)
+    inside = sign < 0
+    graze_gap[inside] = float("inf")
+    graze_t[inside] = 0.0
+    return MarchedRays(t=t, hit=hit, extreme=extreme, t_extreme=t_ext, steps=steps, graze_t=graze_t,
+                       graze_gap=graze_gap)

@@ -22,7 +22,9 @@ def render(
 
     With a fused march (``backend`` "cpu", "cuda", or "auto" where the kernels are available) the
     differentiable stage is fused too (renderer/fused.py), except for the exact intersection;
-    ``backend="reference"`` runs the PyTorch specification of both stages.
+    ``backend="reference"`` runs the PyTorch specification of both stages. With
+    ``scene.gradient="visibility"`` the march also finds grazing points, and the edge term of the
+    gradient is PyTorch's on either path (renderer/stage2.py).
 
     Args:
         grid: B_g grids. cameras: B_c cameras, a multiple of B_g; camera c sees grid
@@ -35,5 +37,5 @@ def render(
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
-    trace = sphere_trace(grid, cameras, trace_settings, backend)
+    trace = sphere_trace(grid, cameras, trace_settings, backend, grazing=scene.needs_grazing())
     return shade_trace(grid, cameras, trace, scene)

@@ -8,6 +8,7 @@ import math
 
 EFFECTS = ("silhouette", "depth", "normal", "shading")
 INTERSECTIONS = ("conservative", "exact")
+GRADIENTS = ("paper", "visibility")
 
 
 def _vec3(x, name: str) -> tuple[float, float, float]:
@@ -68,6 +69,14 @@ class Scene:
         intersection: how the hit point is found from the traced point: "conservative" is the
             paper's ``p = s + f(s) v``; "exact" the root of the trilinear SDF along the ray, with
             gradients by implicit differentiation (renderer/exact.py).
+        gradient: which gradient the image gets. "paper": local shading at fixed hit points only
+            (the paper's; no gradient moves an edge, the soft silhouette being a separate output).
+            "visibility": that, plus the motion of the image's edges, the outline against the
+            background and self-occlusion edges alike (renderer/shading.py, ``edge_gradient``);
+            it needs grazing points from the march, which ``render`` asks for. Only the shaded
+            image gets it; depth, normals and the silhouette keep the paper's gradient.
+        visibility_band: with ``gradient="visibility"``, the width in pixels of the band beside
+            each edge whose pixels carry the edge's gradient (larger: smoother and more biased).
     """
 
     effects: tuple[str, ...] = ("silhouette", "depth", "normal", "shading")
@@ -79,6 +88,8 @@ class Scene:
     background: Union[float, tuple[float, ...]] = 0.0
     silhouette_sigma: float = 0.3
     intersection: str = "conservative"
+    gradient: str = "paper"
+    visibility_band: float = 1.0
 
     def __post_init__(self) -> None:
         effects = (self.effects,) if isinstance(self.effects, str) else tuple(self.effects)
@@ -107,6 +118,10 @@ class Scene:
             raise ValueError(f"silhouette_sigma must be positive, got {self.silhouette_sigma}")
         if self.intersection not in INTERSECTIONS:
             raise ValueError(f"intersection must be one of {INTERSECTIONS}, got {self.intersection!r}")
+        if self.gradient not in GRADIENTS:
+            raise ValueError(f"gradient must be one of {GRADIENTS}, got {self.gradient!r}")
+        if not (self.visibility_band > 0 and math.isfinite(self.visibility_band)):
+            raise ValueError(f"visibility_band must be a positive number of pixels, got {self.visibility_band!r}")
 
     @property
     def channels(self) -> int:
@@ -120,6 +135,10 @@ class Scene:
 
     def needs_normals(self) -> bool:
         return any(e in self.effects for e in ("normal", "shading"))
+
+    def needs_grazing(self) -> bool:
+        """Whether stage 2 reads the rays' grazing points: the visibility gradient of the image."""
+        return self.gradient == "visibility" and "shading" in self.effects
 
 
 SILHOUETTE_ONLY = Scene(effects=("silhouette",))

@@ -2,9 +2,13 @@
 asks for (hit point, depth, normals, Lambert shading, soft silhouettes), with the implementation
 renderer/backends.py chooses: the plain-PyTorch ``shade_reference`` (renderer/shading.py, the
 specification) or the fused kernels (``shade_fused``, renderer/fused.py), both reading the same
-ShadingRays and returning the same Shading; the exact intersection has only the PyTorch version.
+ShadingRays and returning the same Shading; the exact intersection has only the PyTorch version,
+and the visibility gradient's edge term (``edge_gradient``) too, which the fused path adds to its
+image.
 """
 from __future__ import annotations
+
+from dataclasses import replace
 
 import torch
 
@@ -15,7 +19,7 @@ from .grid import SDFGrid
 from .shared_gradient import with_shared_gradient
 from .records import MarchResult, RenderOutput, ShadingRays
 from .scene import Scene
-from .shading import shade_reference
+from .shading import edge_gradient, shade_reference
 
 
 def shading_rays(trace: MarchResult, cameras: Cameras, dtype: torch.dtype, device: torch.device) -> ShadingRays:
@@ -35,6 +39,8 @@ def shading_rays(trace: MarchResult, cameras: Cameras, dtype: torch.dtype, devic
         pixel_angle=cams.pixel_angle.contiguous(),
         eyes=cams.eye.contiguous(),
         pixels=h * w,
+        graze_t=None if trace.graze_t is None else trace.graze_t.reshape(-1).contiguous(),
+        graze_gap=None if trace.graze_gap is None else trace.graze_gap.reshape(-1).contiguous(),
     )
 
 
@@ -44,23 +50,32 @@ def shade_trace(grid: SDFGrid, cameras: Cameras, trace: MarchResult, scene: Scen
 
     Args:
         grid: the B_g grids ``trace`` was marched through; cameras: its B_c cameras.
-        trace: ``sphere_trace(grid, cameras, ...)``.
-        scene: effects, lights, material, background, intersection.
+        trace: ``sphere_trace(grid, cameras, ...)``, with ``grazing=True`` for the visibility gradient.
+        scene: effects, lights, material, background, intersection, gradient.
         stage2: "reference", the PyTorch stage 2 (renderer/shading.py); "fused", one kernel forward
             and one backward (renderer/fused.py; the grid's device must have the fused kernels, and
-            the intersection must be the conservative one); "auto", fused after a fused march with
-            the conservative intersection, else the reference.
+            the intersection must be the conservative one), with the visibility gradient's edge
+            term from PyTorch added to its image; "auto", fused after a fused march with the
+            conservative intersection, else the reference.
     Returns:
         RenderOutput with (B_c, H, W) maps, differentiable w.r.t. ``grid.values``.
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
+    if scene.needs_grazing() and trace.graze_gap is None:
+        raise ValueError("trace has no grazing points, which gradient='visibility' needs: march it with "
+                         "sphere_trace(..., grazing=True)")
     backend = resolve_stage2(stage2, trace.backend, scene, grid.device)
     rays = shading_rays(trace, cameras, grid.dtype, grid.device)
     if backend is None:
         # The plain-autograd specification, its samplings' gradients added into one buffer (the
         # same values and gradients, faster on large grid batches: renderer/shared_gradient.py).
         out = shade_reference(with_shared_gradient(grid), rays, scene)
+    elif scene.needs_grazing():
+        # The edge term has no kernel yet: the kernels make the paper's passes, the PyTorch term
+        # (a few rays beside the edges) adds the edges' motion to the image's gradient.
+        out = shade_fused(backend, grid, rays, replace(scene, gradient="paper"))
+        out = replace(out, image=out.image + edge_gradient(grid, rays, out.image.detach(), scene))
     else:
         out = shade_fused(backend, grid, rays, scene)
     b, h, w = trace.hit.shape

@@ -36,6 +36,7 @@ def sphere_trace(
     cameras: Cameras,
     settings: TraceSettings = TraceSettings(),
     backend: str = "auto",
+    grazing: bool = False,
 ) -> MarchResult:
     """Marches one ray per pixel of every camera through its grid, without gradients.
 
@@ -43,6 +44,7 @@ def sphere_trace(
         grid: B_g grids; cameras: B_c cameras with B_c a multiple of B_g (see camera_grid_index).
         settings: march settings.
         backend: "auto" (fused kernel for the device, else reference), "reference", "cpu", "cuda".
+        grazing: also find each ray's grazing point (``Scene(gradient="visibility")`` needs them).
     Returns:
         MarchResult with (B_c, H, W) maps.
     """
@@ -65,9 +67,9 @@ def sphere_trace(
     o = origins.reshape(-1, 3)
     d = directions.reshape(-1, 3)
     if chosen == "reference":
-        out = march_reference(grid, o, d, ray_grid, ray_pix, settings)
+        out = march_reference(grid, o, d, ray_grid, ray_pix, settings, grazing)
     else:
-        out = march_fused(chosen, grid, o, d, ray_grid, ray_pix, settings, check_indices=False)
+        out = march_fused(chosen, grid, o, d, ray_grid, ray_pix, settings, check_indices=False, grazing=grazing)
     t = out.t.reshape(b, h, w)
     return MarchResult(
         hit=out.hit.reshape(b, h, w),
@@ -80,4 +82,6 @@ def sphere_trace(
         directions=directions,
         grid_index=gidx,
         backend=chosen,
+        graze_t=None if out.graze_t is None else out.graze_t.reshape(b, h, w),
+        graze_gap=None if out.graze_gap is None else out.graze_gap.reshape(b, h, w),
     )

@@ -175,7 +175,8 @@ def _launch(backend: str, cpu_kernel, cuda_kernel, tensors: list[torch.Tensor], 
 
 @torch.no_grad()
 def march(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: torch.Tensor, origins: torch.Tensor,
-          directions: torch.Tensor, grid_index: torch.Tensor, pixel_angle: torch.Tensor) -> MarchedRays:
+          directions: torch.Tensor, grid_index: torch.Tensor, pixel_angle: torch.Tensor,
+          grazing: bool = False) -> MarchedRays:
     """Launches the march kernel of ``backend`` ("cpu" or "cuda") on R rays.
 
     Args:
@@ -184,6 +185,7 @@ def march(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: tor
             values' device.
         origins, directions: (R, 3) world, unit directions; pixel_angle (R,): in the values' dtype,
             contiguous. grid_index: (R,) int64, contiguous, each in [0, B).
+        grazing: whether ``iparams`` asks for grazing points (then returned, else None).
     Returns:
         MarchedRays on the values' device.
     """
@@ -194,12 +196,16 @@ def march(backend: str, values: torch.Tensor, params: torch.Tensor, iparams: tor
     extreme = torch.empty(r, 3, dtype=dt, device=dev)
     t_extreme = torch.empty(r, dtype=dt, device=dev)
     steps = torch.empty(r, dtype=torch.int32, device=dev)
+    graze = torch.empty(r if grazing else 1, 2, dtype=dt, device=dev)  # (gap, distance); unwritten if not asked
     m = load()
     cuda_kernel = m.make_cuda_kernel() if backend == "cuda" else None
     _launch(backend, m.march_rays_cpu, cuda_kernel,
             [values, params, iparams, origins, directions, grid_index, pixel_angle, t, hit, extreme, t_extreme,
-             steps], r)
-    return MarchedRays(t=t, hit=hit.view(torch.bool), extreme=extreme, t_extreme=t_extreme, steps=steps)
+             steps, graze], r)
+    if not grazing:
+        return MarchedRays(t=t, hit=hit.view(torch.bool), extreme=extreme, t_extreme=t_extreme, steps=steps)
+    return MarchedRays(t=t, hit=hit.view(torch.bool), extreme=extreme, t_extreme=t_extreme, steps=steps,
+                       graze_t=graze[:, 1], graze_gap=graze[:, 0])
 
 
 def _ray_arrays(rays: ShadingRays) -> list[torch.Tensor]:

@@ -4,7 +4,8 @@ shading (forward and backward). The march of one ray is renderer/reference.py's 
 box entry and exit by the slab test, the sign at the start point, sphere tracing with the hit
 threshold, the closest approach of misses, the search for the deepest point behind hits and the
 start-inside cases, written as a small state machine (``ray_begin`` the box test, ``ray_advance``
-one SDF sample in and the ray's new state and next sample position out, ``ray_extreme``). Both
+one SDF sample in and the ray's new state and next sample position out, ``ray_extreme``), and
+where asked the grazing points (``ray_graze``, fed each sample beside ``ray_advance``). Both
 kernels drive those routines: ``march_ray`` runs one ray to the end (the CUDA kernel,
 ``cuda_march_body``, one ray per thread with its state in registers), and the CPU kernel
 ``march_rays_cpu`` runs LANES rays interleaved per thread (``march_block``), because a lone ray's
@@ -41,16 +42,16 @@ cuda = None
 
 # ``params`` (grid dtype) holds, from the indices below: bbox_min (3), bbox_max (3), the voxel
 # size (3), the box centre (3), ``res - 1`` (3) and ``res - 2`` (3) as floats, then 0, 1, the tiny
-# direction component, the threshold floor, the threshold scale, the fixed threshold and
-# ``-inner_depth``. ``iparams`` (int64): Nx, Ny, Nz, max_steps, inner_steps, whether the threshold
-# is fixed.
+# direction component, the threshold floor, the threshold scale, the fixed threshold,
+# ``-inner_depth`` and +inf. ``iparams`` (int64): Nx, Ny, Nz, max_steps, inner_steps, whether the
+# threshold is fixed, whether to find grazing points.
 # float parameters
 LO, HI, VOX, CENTRE, TOP, CELL_MAX = 0, 3, 6, 9, 12, 15
-ZERO, ONE, TINY, FLOOR, SCALE, FIXED, NEG_DEPTH = 18, 19, 20, 21, 22, 23, 24
-N_PARAMS = 25
+ZERO, ONE, TINY, FLOOR, SCALE, FIXED, NEG_DEPTH, INF = 18, 19, 20, 21, 22, 23, 24, 25
+N_PARAMS = 26
 # int parameters
-NX, NY, NZ, MAX_STEPS, INNER_STEPS, USE_FIXED = 0, 1, 2, 3, 4, 5
-N_IPARAMS = 6
+NX, NY, NZ, MAX_STEPS, INNER_STEPS, USE_FIXED, GRAZING = 0, 1, 2, 3, 4, 5, 6
+N_IPARAMS = 7
 
 
 def float_like(i, like):
@@ -262,35 +263,66 @@ def ray_extreme(phase, te, ox, oy, oz, dx, dy, dz, params):
     return ox + te * dx, oy + te * dy, oz + te * dz
 
 
+@ray_helper
+def ray_graze(phase, f, ts, sign, last_f, last_t, falling, graze_gap, graze_t, pixel_angle, params, iparams):
+    """Feeds the SDF sample f, taken at ``ts`` in ``phase`` (the phase before ``ray_advance`` moved
+    the ray on; ``sign`` the one it decided), into the search for the ray's grazing point
+    (renderer/reference.py, step 3): a march sample at most the previous one and below the next
+    one is a local minimum, and the one with the smallest gap in pixel footprints is kept. Rays
+    that began inside the shape (sign -1) have none.
+
+    Returns the new (last_f, last_t, falling, graze_gap, graze_t) (unchanged by other samples).
+    """
+    if iparams[GRAZING] == 0 or (phase != START and phase != MARCH) or sign < params[ZERO]:
+        return last_f, last_t, falling, graze_gap, graze_t
+    if phase == MARCH:  # the first march sample (phase START) has no previous one
+        foot = last_t * pixel_angle
+        if not foot > params[FLOOR]:
+            foot = params[FLOOR]
+        gap = (last_f - hit_threshold(last_t, pixel_angle, params, iparams)) / foot
+        if falling != 0 and f > last_f and gap < graze_gap:
+            graze_gap = gap
+            graze_t = last_t
+    falling = 1 if phase == MARCH and f <= last_f else 0
+    return f, ts, falling, graze_gap, graze_t
+
+
 @ray_function
 def march_ray(values, params, iparams, ox, oy, oz, dx, dy, dz, b, pixel_angle):
     """Marches one ray to the end (renderer/reference.py, steps 1-4): the state machine driven
     sample by sample.
 
     Returns:
-        (t, hit, extreme x, y, z, t_extreme, steps): the traced distance (0 outside the box),
-        whether it hit, the closest-approach or deepest point (world) and its distance, and the
-        number of SDF samples of the march.
+        (t, hit, extreme x, y, z, t_extreme, steps, graze_gap, graze_t): the traced distance (0
+        outside the box), whether it hit, the closest-approach or deepest point (world) and its
+        distance, the number of SDF samples of the march, and the grazing point's gap and distance
+        (+inf and 0 where there is none or none was asked for).
     """
     phase, ts, t, best_f, best_t, sign, t0, t_far, steps, count, hit = ray_begin(ox, oy, oz, dx, dy, dz, params)
+    last_f, last_t, falling, graze_gap, graze_t = params[ZERO], params[ZERO], 0, params[INF], params[ZERO]
     while phase < DONE:
         f = sample_sdf(values, b, ox + ts * dx, oy + ts * dy, oz + ts * dz, params, iparams)
+        sampled_phase, sampled_ts = phase, ts
         phase, ts, t, best_f, best_t, sign, steps, count, hit = ray_advance(
             f, phase, ts, t, best_f, best_t, sign, t0, t_far, steps, count, hit, pixel_angle, params, iparams)
+        last_f, last_t, falling, graze_gap, graze_t = ray_graze(
+            sampled_phase, f, sampled_ts, sign, last_f, last_t, falling, graze_gap, graze_t, pixel_angle, params,
+            iparams)
     ex, ey, ez = ray_extreme(phase, best_t, ox, oy, oz, dx, dy, dz, params)
-    return t, hit != 0, ex, ey, ez, best_t, steps
+    return t, hit != 0, ex, ey, ez, best_t, steps, graze_gap, graze_t
 
 
 @ray_function
 def march_into(r, values, params, iparams, origins, directions, grid_index, pixel_angle,
-               t_out, hit_out, extreme_out, t_extreme_out, steps_out):
+               t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out):
     """Marches ray r and writes its results: the CUDA kernel's body per thread."""
-    t, hit, ex, ey, ez, te, steps = march_ray(
+    t, hit, ex, ey, ez, te, steps, graze_gap, graze_t = march_ray(
         values, params, iparams,
         origins[r, 0], origins[r, 1], origins[r, 2],
         directions[r, 0], directions[r, 1], directions[r, 2],
         grid_index[r], pixel_angle[r])
     _write(r, t, 1 if hit else 0, ex, ey, ez, te, steps, t_out, hit_out, extreme_out, t_extreme_out, steps_out)
+    _write_graze(r, graze_gap, graze_t, iparams, graze_out)
 
 
 @ray_helper
@@ -304,6 +336,14 @@ def _write(r, t, hit, ex, ey, ez, te, steps, t_out, hit_out, extreme_out, t_extr
     steps_out[r] = steps
 
 
+@ray_helper
+def _write_graze(r, graze_gap, graze_t, iparams, graze_out):
+    """Writes ray r's grazing point (gap, distance) into graze_out (R, 2), where asked for."""
+    if iparams[GRAZING] != 0:
+        graze_out[r, 0] = graze_gap
+        graze_out[r, 1] = graze_t
+
+
 # ---------------------------------------------------------------------------- CPU: interleaved rays
 # A CPU thread marches LANES rays at once, one sample of each in turn, taking the next ray of its
 # block into a lane as soon as the lane's ray finishes. A lone ray's samples form a chain of
@@ -314,9 +354,10 @@ LANES = 8
 BLOCK = 64  # rays per prange iteration (per block the lanes work through)
 # rows of the per-lane state: float (grid dtype) and int64
 F_TS, F_T, F_BEST_F, F_BEST_T, F_SIGN, F_T0, F_T_FAR, F_WX, F_WY, F_WZ = range(10)
-N_FSTATE = 10
-I_RAY, I_PHASE, I_STEPS, I_COUNT, I_HIT = range(5)
-N_ISTATE = 5
+F_LAST_F, F_LAST_T, F_GRAZE_GAP, F_GRAZE_T = range(10, 14)  # the grazing search (``ray_graze``)
+N_FSTATE = 14
+I_RAY, I_PHASE, I_STEPS, I_COUNT, I_HIT, I_FALLING = range(6)
+N_ISTATE = 6
 
 
 @ray_helper
@@ -334,8 +375,8 @@ def _store_lane(k, fs, ist, phase, ts, t, best_f, best_t, sign, steps, count, hi
 
 
 @ray_function
-def _start_lane(k, fs, ist, next_ray, end, params, origins, directions,
-                t_out, hit_out, extreme_out, t_extreme_out, steps_out):
+def _start_lane(k, fs, ist, next_ray, end, params, iparams, origins, directions,
+                t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out):
     """Puts the next ray of the block that needs samples into lane k (rays that miss the box are
     finished on the way). Returns the new next ray and whether the lane got one."""
     while next_ray < end:
@@ -347,9 +388,15 @@ def _start_lane(k, fs, ist, next_ray, end, params, origins, directions,
         if phase >= DONE:
             ex, ey, ez = ray_extreme(phase, best_t, ox, oy, oz, dx, dy, dz, params)
             _write(r, t, hit, ex, ey, ez, best_t, steps, t_out, hit_out, extreme_out, t_extreme_out, steps_out)
+            _write_graze(r, params[INF], params[ZERO], iparams, graze_out)
             continue
         fs[F_T0, k] = t0
         fs[F_T_FAR, k] = t_far
+        fs[F_LAST_F, k] = params[ZERO]
+        fs[F_LAST_T, k] = params[ZERO]
+        fs[F_GRAZE_GAP, k] = params[INF]
+        fs[F_GRAZE_T, k] = params[ZERO]
+        ist[I_FALLING, k] = 0
         ist[I_RAY, k] = r
         _store_lane(k, fs, ist, phase, ts, t, best_f, best_t, sign, steps, count, hit)
         return next_ray, True
@@ -359,7 +406,7 @@ def _start_lane(k, fs, ist, next_ray, end, params, origins, directions,
 
 @ray_function
 def march_block(start, end, fs, ist, corners, values, params, iparams, origins, directions, grid_index,
-                pixel_angle, t_out, hit_out, extreme_out, t_extreme_out, steps_out):
+                pixel_angle, t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out):
     """Marches rays start..end-1 on LANES lanes, with the same per-ray routines as ``march_ray``.
 
     fs (N_FSTATE, LANES), ist (N_ISTATE, LANES), corners (8, LANES): scratch for the lanes' state.
@@ -367,8 +414,8 @@ def march_block(start, end, fs, ist, corners, values, params, iparams, origins, 
     next_ray = start
     active = 0
     for k in range(LANES):
-        next_ray, got = _start_lane(k, fs, ist, next_ray, end, params, origins, directions,
-                                    t_out, hit_out, extreme_out, t_extreme_out, steps_out)
+        next_ray, got = _start_lane(k, fs, ist, next_ray, end, params, iparams, origins, directions,
+                                    t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out)
         if got:
             active += 1
     while active > 0:
@@ -399,17 +446,28 @@ def march_block(start, end, fs, ist, corners, values, params, iparams, origins, 
                 continue
             f = trilinear(corners[0, k], corners[1, k], corners[2, k], corners[3, k], corners[4, k],
                           corners[5, k], corners[6, k], corners[7, k], fs[F_WX, k], fs[F_WY, k], fs[F_WZ, k])
+            sampled_phase, sampled_ts = ist[I_PHASE, k], fs[F_TS, k]
             phase, ts, t, best_f, best_t, sign, steps, count, hit = ray_advance(
-                f, ist[I_PHASE, k], fs[F_TS, k], fs[F_T, k], fs[F_BEST_F, k], fs[F_BEST_T, k], fs[F_SIGN, k],
+                f, sampled_phase, sampled_ts, fs[F_T, k], fs[F_BEST_F, k], fs[F_BEST_T, k], fs[F_SIGN, k],
                 fs[F_T0, k], fs[F_T_FAR, k], ist[I_STEPS, k], ist[I_COUNT, k], ist[I_HIT, k],
                 pixel_angle[r], params, iparams)
+            if iparams[GRAZING] != 0:  # (the lanes' stores cost the plain march a few per cent)
+                last_f, last_t, falling, graze_gap, graze_t = ray_graze(
+                    sampled_phase, f, sampled_ts, sign, fs[F_LAST_F, k], fs[F_LAST_T, k], ist[I_FALLING, k],
+                    fs[F_GRAZE_GAP, k], fs[F_GRAZE_T, k], pixel_angle[r], params, iparams)
+                fs[F_LAST_F, k] = last_f
+                fs[F_LAST_T, k] = last_t
+                ist[I_FALLING, k] = falling
+                fs[F_GRAZE_GAP, k] = graze_gap
+                fs[F_GRAZE_T, k] = graze_t
             if phase >= DONE:
                 ox, oy, oz = origins[r, 0], origins[r, 1], origins[r, 2]
                 dx, dy, dz = directions[r, 0], directions[r, 1], directions[r, 2]
                 ex, ey, ez = ray_extreme(phase, best_t, ox, oy, oz, dx, dy, dz, params)
                 _write(r, t, hit, ex, ey, ez, best_t, steps, t_out, hit_out, extreme_out, t_extreme_out, steps_out)
-                next_ray, got = _start_lane(k, fs, ist, next_ray, end, params, origins, directions,
-                                            t_out, hit_out, extreme_out, t_extreme_out, steps_out)
+                _write_graze(r, fs[F_GRAZE_GAP, k], fs[F_GRAZE_T, k], iparams, graze_out)
+                next_ray, got = _start_lane(k, fs, ist, next_ray, end, params, iparams, origins, directions,
+                                            t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out)
                 if not got:
                     active -= 1
                 continue
@@ -418,7 +476,7 @@ def march_block(start, end, fs, ist, corners, values, params, iparams, origins, 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def march_rays_cpu(values, params, iparams, origins, directions, grid_index, pixel_angle,
-                   t_out, hit_out, extreme_out, t_extreme_out, steps_out):
+                   t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out):
     """CPU kernel: blocks of BLOCK rays over ``prange``, LANES rays interleaved per thread
     (``march_block``). Shapes as in ``cuda_march_body``."""
     n = origins.shape[0]
@@ -429,21 +487,23 @@ def march_rays_cpu(values, params, iparams, origins, directions, grid_index, pix
         corners = np.empty((8, LANES), dtype=values.dtype)
         start = blk * BLOCK
         march_block(start, min(n, start + BLOCK), fs, ist, corners, values, params, iparams, origins,
-                    directions, grid_index, pixel_angle, t_out, hit_out, extreme_out, t_extreme_out, steps_out)
+                    directions, grid_index, pixel_angle, t_out, hit_out, extreme_out, t_extreme_out, steps_out,
+                    graze_out)
 
 
 def cuda_march_body(values, params, iparams, origins, directions, grid_index, pixel_angle,
-                    t_out, hit_out, extreme_out, t_extreme_out, steps_out):
+                    t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out):
     """CUDA kernel body (compiled by ``make_cuda_kernel``): one ray per thread.
 
     values (B * Nx * Ny * Nz,) the grids flattened; params (N_PARAMS,) and the float arrays in the grid dtype; iparams
     (N_IPARAMS,) int64; origins, directions (R, 3); grid_index (R,) int64; pixel_angle (R,);
-    outputs t (R,), hit (R,) uint8, extreme (R, 3), t_extreme (R,), steps (R,) int32.
+    outputs t (R,), hit (R,) uint8, extreme (R, 3), t_extreme (R,), steps (R,) int32, and graze
+    (R, 2) (gap, distance) where iparams asks for grazing points (else it is not written).
     """
     r = cuda.grid(1)
     if r < origins.shape[0]:
         march_into(r, values, params, iparams, origins, directions, grid_index, pixel_angle,
-                   t_out, hit_out, extreme_out, t_extreme_out, steps_out)
+                   t_out, hit_out, extreme_out, t_extreme_out, steps_out, graze_out)
 
 
 _cuda_kernel = None

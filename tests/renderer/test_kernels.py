@@ -35,7 +35,8 @@ BACKENDS = ["cpu", pytest.param("cuda", marks=pytest.mark.cuda)]
 ALL = Scene(effects=("silhouette", "depth", "normal", "shading"), camera_light=1.0)
 
 pytestmark = pytest.mark.skipif(not backends.march_available("cpu")[0], reason="numba is unavailable")
-RAY_FIELDS = [f.name for f in dataclasses.fields(MarchedRays)]
+# The grazing points (None unless asked for) are compared in tests/renderer/test_visibility.py.
+RAY_FIELDS = [f.name for f in dataclasses.fields(MarchedRays) if not f.name.startswith("graze_")]
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -547,26 +548,32 @@ from tests.renderer.test_kernels import camera_rays
 grid = SDFGrid.from_function(torus_sdf, 16)
 cams = Cameras.look_at([[0.5, 1.0, 2.5], [0.0, 0.0, 0.1]], fov_deg=50, image_size=(5, 7))
 o, d, gi, pix = camera_rays(grid, cams)
-params, iparams = march_params(grid, TraceSettings())
+params, iparams = march_params(grid, TraceSettings(), grazing=True)
 r = o.shape[0]
 outs = [np.zeros(r, np.float32), np.zeros(r, np.uint8), np.zeros((r, 3), np.float32), np.zeros(r, np.float32),
-        np.zeros(r, np.int32)]
+        np.zeros(r, np.int32), np.zeros((r, 2), np.float32)]
 kernel = raymarch.make_cuda_kernel()
 kernel[3, 32](grid.values.reshape(-1).numpy(), params.numpy(), iparams.numpy(), o.contiguous().numpy(), d.numpy(),
               gi.numpy(), pix.numpy(), *outs)
-ref = march_reference(grid, o, d, gi, pix, TraceSettings())
+ref = march_reference(grid, o, d, gi, pix, TraceSettings(), grazing=True)
+gap = ref.graze_gap.numpy()
+found = np.isfinite(gap)
 print(json.dumps({
     "hit_equal": bool((outs[1].astype(bool) == ref.hit.numpy()).all()),
     "t_err": float(np.abs(outs[0] - ref.t.numpy()).max()),
     "ext_err": float(np.abs(outs[2] - ref.extreme.numpy()).max()),
     "steps_equal": bool((outs[4] == ref.steps.numpy()).all()),
+    "graze_none_equal": bool((np.isfinite(outs[5][:, 0]) == found).all()),
+    "grazing": int(found.sum()),
+    "graze_err": float(np.abs(outs[5][found] - np.stack([gap, ref.graze_t.numpy()], 1)[found]).max()),
 }))
 """
 
 
 def test_cuda_kernel_body_in_the_cuda_simulator():
     """The CUDA kernel (thread indexing, bounds, the shared per-ray routine) run by numba's CUDA
-    simulator on the CPU, against the reference: 70 rays on 3 blocks of 32 threads."""
+    simulator on the CPU, against the reference: 70 rays on 3 blocks of 32 threads, with grazing
+    points."""
     # The simulator runs kernels as Python, so the shared @njit routine runs as Python too.
     env = {**os.environ, "NUMBA_ENABLE_CUDASIM": "1", "NUMBA_DISABLE_JIT": "1"}
     out = subprocess.run([sys.executable, "-c", SIMULATOR_SCRIPT], cwd=ROOT, env=env, capture_output=True,
@@ -575,6 +582,7 @@ def test_cuda_kernel_body_in_the_cuda_simulator():
     res = json.loads(out.stdout.strip().splitlines()[-1])
     assert res["hit_equal"] and res["steps_equal"], res
     assert res["t_err"] < 1e-4 * 2 / 15 and res["ext_err"] < 1e-4 * 2 / 15, res
+    assert res["graze_none_equal"] and res["grazing"] > 5 and res["graze_err"] < 1e-4, res
 
 
 def device_less_cuda(monkeypatch):
@@ -608,7 +616,7 @@ def test_cuda_kernel_compiles_to_ptx(dtype, monkeypatch):
     f = getattr(types, dtype)
     arr = lambda ty, nd: types.Array(ty, nd, "C")  # noqa: E731
     sig = (arr(f, 1), arr(f, 1), arr(types.int64, 1), arr(f, 2), arr(f, 2), arr(types.int64, 1), arr(f, 1),
-           arr(f, 1), arr(types.uint8, 1), arr(f, 2), arr(f, 1), arr(types.int32, 1))
+           arr(f, 1), arr(types.uint8, 1), arr(f, 2), arr(f, 1), arr(types.int32, 1), arr(f, 2))
     ptx, _ = cuda.compile_ptx(raymarch.cuda_march_body, sig, cc=(8, 0))
     assert ".entry" in ptx or ".visible .entry" in ptx
 
