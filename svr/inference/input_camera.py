@@ -13,11 +13,9 @@ import numpy as np
 import torch
 
 import renderer
+from renderer import NMR_DISTANCE, NMR_ELEVATION_DEG, NMR_FOV_DEG
 from svr.inference.framing import Framing, FrameTransform
 from svr.nmr.format import NUM_VIEWS
-
-# renderer.Cameras.nmr's camera.
-NMR_ELEVATION_DEG, NMR_DISTANCE, NMR_FOV_DEG = 30.0, 2.732, 30.0
 
 
 def view_of_azimuth(azimuth_deg: float, name: str = "azimuth") -> float:
@@ -116,5 +114,4 @@ def mesh_in_camera_frame(mesh, camera: InputCamera):
     return m
 
 
-__all__ = ["InputCamera", "estimate_cameras", "mesh_in_camera_frame", "view_of_azimuth",
-           "NMR_DISTANCE", "NMR_ELEVATION_DEG", "NMR_FOV_DEG"]
+__all__ = ["InputCamera", "estimate_cameras", "mesh_in_camera_frame", "view_of_azimuth"]

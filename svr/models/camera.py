@@ -14,8 +14,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from sdfcommon.tooling.checks import check_int
-
-NUM_VIEWS = 24
+from svr.nmr.format import NUM_VIEWS
 # The crop's longest side fills this share of the square (a margin for the anti-aliased edge).
 CROP_FILL = 0.9
 
