@@ -30,7 +30,7 @@ from svr.inference.framing import frame_image, measure_framing
 from svr.inference.images import read_rgba, rgba_to_input
 from svr.inference.prediction import load_model, predict_sdf
 from svr.inference.reconstruction import input_and_camera
-from svr.nmr.metrics import voxel_iou, voxels_protocol
+from svr.nmr.metrics import iou_table, voxel_iou, voxels_protocol
 
 ROOT = Path(__file__).resolve().parents[1]
 CANVAS = 240  # room for the largest object (2 x 1.2 x 64 pixels) moved by 10%
@@ -50,10 +50,6 @@ def make_photo(render: np.ndarray, rng: np.random.Generator) -> tuple[bytes, flo
     buffer = io.BytesIO()
     canvas.save(buffer, format="JPEG", quality=90)
     return buffer.getvalue(), scale
-
-
-def category_means(iou: np.ndarray, category: np.ndarray) -> float:
-    return float(np.mean([iou[category == c].mean() for c in np.unique(category)]))
 
 
 def run(ckpt: str, preset: str, views: int, seed: int, work: Path) -> dict:
@@ -114,7 +110,7 @@ def run(ckpt: str, preset: str, views: int, seed: int, work: Path) -> dict:
         per_object = np.array([values[objects == o].mean() for o in np.unique(objects)])
         cats = np.array([category[objects == o][0] for o in np.unique(objects)])
         _, (lo, hi) = bootstrap_means(per_object, cats)
-        result["rows"][name] = {"mean": category_means(values, category), "lo": lo, "hi": hi}
+        result["rows"][name] = {"mean": iou_table(values, category, dm.categories).mean, "lo": lo, "hi": hi}
     return result
 
 
