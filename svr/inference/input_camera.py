@@ -6,7 +6,7 @@ and what a user needs in a JSON file. The camera is NMR's: elevation 30 degrees,
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, Optional
 
 import numpy as np
@@ -79,8 +79,7 @@ class InputCamera:
         if self.probability is not None:
             out["probability"] = round(float(self.probability), 6)
         if self.framing is not None:
-            out["framing"] = {"extent": self.framing.extent, "centre_x": self.framing.centre_x,
-                              "centre_y": self.framing.centre_y}
+            out["framing"] = asdict(self.framing)
         if self.transform is not None:
             out["photo_to_input"] = self.transform.to_dict()
         return out
