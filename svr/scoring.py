@@ -58,12 +58,13 @@ class RunScores:
 
 
 def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool = True, again: bool = False,
-                         carving: bool = True, device: str = "auto") -> dict:
+                         carving: bool = True, device: str = "auto", protocol_workers: int = 0) -> dict:
     """The calibration record of the checkpoint at ``path``: the stored one, else (or with ``again``,
     replacing it) one searched on the data module's validation split and stored
     (``svr.evaluation.calibration_search``). Without ``carving`` only the level is searched (the
     carvings read the input camera), and a stored record that carves is searched again. The search
-    runs on ``device`` ("auto": CUDA when available)."""
+    runs on ``device`` ("auto": CUDA when available), its voxelisation in ``protocol_workers``
+    processes (0: this one)."""
     record = None if again else stored_calibration(path)
     if record is not None and not carving and record["settings"].get("carve", "none") != "none":
         print(f"{path} holds a calibration that carves; searching again without carving", flush=True)
@@ -71,7 +72,7 @@ def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool =
     if record is None:
         datamodule.prepare_split("val", progress=progress)
         search = search_calibration(load_model(path, device), datamodule.dataset("val"), carving=carving,
-                                    progress=progress)
+                                    progress=progress, workers=protocol_workers)
         store_calibration(path, search)
         record = search.record()
         print(f"calibrated {path} on the validation split in {search.seconds:.0f} s: {search.best.describe()} "
@@ -98,7 +99,7 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
         for stage, path in ((schedule[-1], final_ckpt), (schedule[0], coarse_ckpt)):
             if stage not in calibrations:
                 calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate, carving=carving,
-                                                           device=device)
+                                                           device=device, protocol_workers=protocol_workers)
 
     def load(path: Path):
         model = load_model(path, device)

@@ -13,6 +13,7 @@ import os
 import signal
 import sys
 import threading
+from collections import deque
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from typing import Any, Callable, Iterable, Iterator, Optional
 
@@ -95,4 +96,42 @@ def map_unordered(fn: Callable[..., Any], items: Iterable[Any], workers: int, ar
             raise
 
 
-__all__ = ["process_pool", "map_unordered", "default_workers", "die_with_parent", "PARENT_POLL_S"]
+class OrderedJobs:
+    """Jobs whose results are handled in the order they were submitted: ``done(tag, fn(*args))``,
+    run in this process at once when ``workers`` is 0, else in a ``process_pool`` of ``workers``
+    processes (each running ``initializer(*initargs)`` first) while the caller prepares the next
+    job, with at most two jobs per worker waiting. A context manager: leaving it normally hands
+    over every result; leaving it by an exception cancels the jobs not yet started.
+    """
+
+    def __init__(self, workers: int, done: Callable[[Any, Any], None],
+                 initializer: Optional[Callable[..., None]] = None, initargs: tuple = ()):
+        self.workers, self.done = int(workers), done
+        self.pool = process_pool(self.workers, initializer, initargs) if self.workers > 0 else None
+        self.pending: deque = deque()
+
+    def submit(self, fn: Callable[..., Any], *args: Any, tag: Any = None) -> None:
+        if self.pool is None:
+            self.done(tag, fn(*args))
+            return
+        self.pending.append((tag, self.pool.submit(fn, *args)))
+        while len(self.pending) > 2 * self.workers:
+            self._finish_one()
+
+    def _finish_one(self) -> None:
+        tag, job = self.pending.popleft()
+        self.done(tag, job.result())
+
+    def __enter__(self) -> "OrderedJobs":
+        return self
+
+    def __exit__(self, kind, err, trace) -> None:
+        try:
+            while kind is None and self.pending:
+                self._finish_one()
+        finally:
+            if self.pool is not None:
+                self.pool.shutdown(cancel_futures=True)
+
+
+__all__ = ["OrderedJobs", "process_pool", "map_unordered", "default_workers", "die_with_parent", "PARENT_POLL_S"]

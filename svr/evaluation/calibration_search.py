@@ -15,11 +15,13 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
+import torch
 from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.outputs import write_torch
+from sdfcommon.tooling.processes import OrderedJobs
 from svr.data.datasets import EvalViews
 from svr.data.types import collate_batch
 from svr.inference.calibration import Calibration
@@ -79,11 +81,23 @@ def mirror_axis_of(model: LoadedModel) -> Optional[int]:
     return int(axis) if axis in (0, 1, 2) else None
 
 
+def _score_candidates(raw: torch.Tensor, cone: Optional[torch.Tensor], gt: torch.Tensor,
+                      candidates: Sequence[Calibration], half_side: float) -> list[np.ndarray]:
+    """Per candidate (all with the carving whose field is ``cone``), the (B,) protocol IoU of the
+    calibrated grids ``raw`` (B, N, N, N) against ``gt``. A top-level function so that worker
+    processes can run it."""
+    out = []
+    for cal in candidates:
+        values = clip_to_box(cal.apply(raw, cone), -half_side, half_side)  # as predict_sdf closes them
+        out.append(voxel_iou(voxels_protocol(values, -half_side, half_side), gt).numpy())
+    return out
+
+
 def search_calibration(model: LoadedModel, objects, split: str = "val", views: Sequence[int] = VIEWS,
                        max_objects_per_category: Optional[int] = 20, batch_size: int = 32,
                        levels_voxels: Sequence[float] = LEVELS_VOXELS,
                        carve_levels_voxels: Sequence[float] = CARVE_LEVELS_VOXELS,
-                       carving: bool = True, progress: bool = True) -> CalibrationSearch:
+                       carving: bool = True, progress: bool = True, workers: int = 0) -> CalibrationSearch:
     """Scores every candidate calibration on a split's images (``EvalViews``) and returns the best.
 
     Args:
@@ -94,9 +108,13 @@ def search_calibration(model: LoadedModel, objects, split: str = "val", views: S
         levels_voxels: the levels tried, in voxels of the network's grid (>= 0).
         carve_levels_voxels: the carving cone's levels tried with each carving, in voxels.
         carving: try the carvings (they read the input camera); False: only "none", at each level.
+        workers: processes for the CPU-bound protocol voxelisation (0: this one), one torch thread
+            each; each batch's carvings are scored in parallel while the next batch is predicted.
+            Same result.
     """
     check_model(model)
     check_int(batch_size, "batch_size", minimum=1)
+    check_int(workers, "workers", minimum=0)
     if not levels_voxels or any(not np.isfinite(v) or v < 0 for v in levels_voxels):
         raise ValueError(f"levels_voxels must be non-negative numbers, got {list(levels_voxels)}")
     if not carve_levels_voxels or any(not np.isfinite(v) for v in carve_levels_voxels):
@@ -113,20 +131,28 @@ def search_calibration(model: LoadedModel, objects, split: str = "val", views: S
                   for c, a in carves for cv in (carve_levels_voxels if c != "none" else (0.0,))
                   for lv in levels_voxels]
     scores: list[list[np.ndarray]] = [[] for _ in candidates]
+    by_carve = {c: [k for k, cal in enumerate(candidates) if cal.carve == c] for c, _ in carves}
     cats = []
+
+    def finish(tag: tuple[list[int], int], ious: list[np.ndarray]) -> None:
+        ks, count = tag
+        for k, iou in zip(ks, ious):
+            scores[k].append(iou)
+        bar.update(count)
+
     start = time.perf_counter()
-    with tqdm(total=len(items), desc=f"calibrate on {split}", unit="img", disable=not progress) as bar:
+    with tqdm(total=len(items), desc=f"calibrate on {split}", unit="img", disable=not progress) as bar, \
+            OrderedJobs(workers, finish, torch.set_num_threads, (1,)) as jobs:
         for batch in loader:
             images, vw = batch.images[:, 0], batch.view_ids[:, 0]
             raw = predict_sdf(model, images, batch_size=len(images), views=vw, clip=False,
                               calibrated=False).final.detach().float().cpu()
-            cones = {c: Calibration(carve=c, mirror_axis=a).cone(images, vw, n, hs) for c, a in carves}
-            gt = batch.voxels.cpu()
-            for k, cal in enumerate(candidates):
-                values = clip_to_box(cal.apply(raw, cones[cal.carve]), -hs, hs)  # as predict_sdf closes them
-                scores[k].append(voxel_iou(voxels_protocol(values, -hs, hs), gt).numpy())
+            for i, (c, a) in enumerate(carves):
+                cone = Calibration(carve=c, mirror_axis=a).cone(images, vw, n, hs)
+                jobs.submit(_score_candidates, raw, cone.cpu() if cone is not None else None, batch.voxels.cpu(),
+                            [candidates[k] for k in by_carve[c]], hs,
+                            tag=(by_carve[c], len(images) if i == len(carves) - 1 else 0))
             cats.append(batch.category.numpy())
-            bar.update(len(images))
     category = np.concatenate(cats)
     rows = []
     for cal, s in zip(candidates, scores):

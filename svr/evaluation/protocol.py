@@ -12,7 +12,6 @@ import dataclasses
 import functools
 import time
 import warnings
-from collections import deque
 from typing import Any, Optional, Sequence
 
 import numpy as np
@@ -21,7 +20,7 @@ from torch.utils.data import DataLoader
 from tqdm.auto import tqdm
 
 from sdfcommon.tooling.checks import check_int
-from sdfcommon.tooling.processes import process_pool
+from sdfcommon.tooling.processes import OrderedJobs
 from svr.data.datamodules import SVRDataModule
 from svr.data.datasets import EvalViews
 from svr.data.samplers import EvalShardSampler
@@ -61,7 +60,7 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
         num_workers: DataLoader workers.
         compare_coarse: also score the coarse SDF (the refiner's gain).
         protocol_workers: processes for the CPU-bound mesh voxelisation (0: in this process); they
-            die with this process (``sdfcommon.tooling.processes.process_pool``), killed or not.
+            die with this process (``sdfcommon.tooling.processes.OrderedJobs``), killed or not.
         keep_voxels: keep every predicted voxel grid in the result (32 KiB per image).
         progress: a tqdm progress bar over the images.
         distributed: share the images among the ranks of the initialised default process group
@@ -190,32 +189,21 @@ def _score_batches(model: LoadedModel, loader: DataLoader, scores: _ImageScores,
                    bar: Any) -> None:
     """Predicts every batch of ``loader`` and voxelises the predictions by the protocol into
     ``scores``. With ``protocol_workers`` the voxelisation runs in worker processes while the next
-    batches are predicted (at most two batches per worker wait); they die with this process
-    (``sdfcommon.tooling.processes.process_pool``), killed or not."""
-    pool = process_pool(protocol_workers) if protocol_workers > 0 else None
-    pending: deque = deque()
+    batches are predicted (at most two batches per worker wait), each worker with one torch thread
+    (the voxelisation is single-threaded: more threads only contend for the cores); they die with
+    this process (``sdfcommon.tooling.processes.OrderedJobs``), killed or not."""
 
-    def finish() -> None:
-        batch, job = pending.popleft()
-        scores.add(batch, job.result() if pool is not None else job)
+    def finish(batch: SVRBatch, voxels: np.ndarray) -> None:
+        scores.add(batch, voxels)
         bar.update(len(batch))
 
-    try:
+    with OrderedJobs(protocol_workers, finish, torch.set_num_threads, (1,)) as jobs:
         for batch in loader:
             pred = predict_sdf(model, batch.images[:, 0], batch_size=len(batch), views=batch.view_ids[:, 0])
             scores.score_sides(batch, pred.final, model.half_side)
             grids = [pred.final] + ([pred.coarse] if scores.with_coarse else [])
-            values = torch.cat(grids).detach().float().cpu().numpy()
-            job = (pool.submit(_protocol_voxels, values, model.half_side) if pool is not None
-                   else _protocol_voxels(values, model.half_side))
-            pending.append((batch, job))
-            while len(pending) > (2 * protocol_workers if pool is not None else 0):
-                finish()
-        while pending:
-            finish()
-    finally:
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
+            jobs.submit(_protocol_voxels, torch.cat(grids).detach().float().cpu().numpy(), model.half_side,
+                        tag=batch)
 
 
 def _gathered(parts: list, dtype: Any, shape: tuple = (), world_size: int = 1) -> np.ndarray:

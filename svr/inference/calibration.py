@@ -11,6 +11,7 @@ of its own (0: the silhouette's exact cone). Both only use the input image and i
 apply wherever the network does."""
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import asdict, dataclass
 from typing import Any, Mapping, Optional
@@ -122,6 +123,26 @@ def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.
     return torch.from_numpy(out).to(alpha.device)
 
 
+@functools.lru_cache(maxsize=64)
+def _view_lookup(view: int, size: int, resolution: int, half_side: float, flip_axis: Optional[int],
+                 device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Where each sample of the N^3 grid (mirrored across ``flip_axis`` when not None) projects in
+    NMR view ``view``'s S x S image, as ``grid_sample`` coordinates (1, 1, N^3, 2), and the world size
+    of one pixel per unit of depth, and each sample's depth (N^3,). The same for every image from that view, so it is computed
+    once: projecting the grid for each image was most of an evaluation's prediction time."""
+    axis = torch.linspace(-half_side, half_side, resolution, dtype=torch.float32, device=device)
+    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    if flip_axis is not None:
+        flip = torch.ones(3, device=device)
+        flip[flip_axis] = -1.0
+        points = points * flip
+    cams = renderer.Cameras.nmr(torch.tensor([view]), image_size=size).to(device, torch.float32)
+    pixel_per_depth = 2.0 * torch.tan(torch.deg2rad(cams.fov_deg) / 2.0) / size  # (1,)
+    pix, depth = cams.project(points)
+    grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
+    return grid, pixel_per_depth, depth[0]
+
+
 def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: int, half_side: float,
                         mirror_axis: Optional[int] = None, threshold: float = 0.5) -> torch.Tensor:
     """An SDF-like field (world units, positive outside) of the cone of rays through the input
@@ -138,23 +159,18 @@ def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: in
     """
     b, size = alpha.shape[0], alpha.shape[-1]
     dist = signed_pixel_distance(alpha, threshold)[:, None]  # (B, 1, S, S)
-    axis = torch.linspace(-half_side, half_side, resolution, dtype=torch.float32, device=alpha.device)
-    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    cams = renderer.Cameras.nmr(torch.as_tensor(views).detach().cpu(), image_size=size).to(alpha.device,
-                                                                                          torch.float32)
-    pixel_per_depth = (2.0 * torch.tan(torch.deg2rad(cams.fov_deg) / 2.0) / size)[:, None]  # (B, 1)
-
-    def field(pts: torch.Tensor) -> torch.Tensor:
-        pix, depth = cams.project(pts)
-        grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
-        d = F.grid_sample(dist, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, 0, 0]
-        return d * depth * pixel_per_depth
-
-    out = field(points)
-    if mirror_axis is not None:
-        flip = torch.ones(3, device=alpha.device)
-        flip[mirror_axis] = -1.0
-        out = torch.maximum(out, field(points * flip))
+    view_list = [int(v) for v in torch.as_tensor(views).detach().cpu().reshape(-1).tolist()]
+    if len(view_list) != b:
+        raise ValueError(f"views has {len(view_list)} entries for {b} images")
+    out = torch.empty(b, resolution ** 3, dtype=torch.float32, device=alpha.device)
+    key = (size, int(resolution), float(half_side))
+    for view in sorted(set(view_list)):
+        rows = [i for i, v in enumerate(view_list) if v == view]
+        for flip_axis in (None,) + ((mirror_axis,) if mirror_axis is not None else ()):
+            grid, pixel_per_depth, depth = _view_lookup(view, *key, flip_axis, str(alpha.device))
+            d = F.grid_sample(dist[rows], grid.expand(len(rows), -1, -1, -1), mode="bilinear",
+                              padding_mode="border", align_corners=False)[:, 0, 0] * depth * pixel_per_depth
+            out[rows] = d if flip_axis is None else torch.maximum(out[rows], d)
     return out.reshape(b, resolution, resolution, resolution)
 
 

@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from sdfcommon.tooling.processes import map_unordered, process_pool
+from sdfcommon.tooling.processes import OrderedJobs, map_unordered, process_pool
 
 
 def _set_marker(value: str) -> None:
@@ -44,3 +44,29 @@ def test_ctrl_c_ends_the_workers_instead_of_waiting_for_them(ctrl_c_raises):
     while multiprocessing.active_children() and time.perf_counter() < end:
         time.sleep(0.05)
     assert not multiprocessing.active_children()
+
+
+def _slow_square(x: int) -> tuple[int, str]:
+    time.sleep(0.05 * (3 - x % 3))  # later jobs finish first
+    return x * x, os.environ.get("SDFCOMMON_TEST_MARKER", "")
+
+
+@pytest.mark.parametrize("workers", [0, 2])
+def test_ordered_jobs_hand_over_every_result_in_submission_order(workers):
+    seen = []
+    with OrderedJobs(workers, lambda tag, result: seen.append((tag, result)), _set_marker, ("ready",)) as jobs:
+        for x in range(7):
+            jobs.submit(_slow_square, x, tag=f"job{x}")
+            assert len(seen) >= (x + 1 if workers == 0 else x + 1 - 2 * workers)  # at most 2 per worker wait
+    marker = "ready" if workers else os.environ.get("SDFCOMMON_TEST_MARKER", "")
+    assert seen == [(f"job{x}", (x * x, marker)) for x in range(7)]
+
+
+def test_ordered_jobs_left_by_an_exception_hand_over_nothing_more():
+    seen = []
+    with pytest.raises(RuntimeError, match="stop"):
+        with OrderedJobs(1, lambda tag, result: seen.append(tag)) as jobs:
+            for x in range(3):
+                jobs.submit(_slow_square, x, tag=x)
+            raise RuntimeError("stop")
+    assert seen == [0]  # the third submit waited for the first; the others were dropped

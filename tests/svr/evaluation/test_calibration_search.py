@@ -67,6 +67,11 @@ def test_search_finds_the_level_that_undoes_an_overfill(monkeypatch):
     level_only = search_calibration(model, _Spheres(2, gt), views=(0, 7), carving=False, progress=False)
     assert {r["carve"] for r in level_only.rows} == {"none"} and len(level_only.rows) == 7
     assert level_only.best == search.best and level_only.record()["carving"] is False
+    # the voxelisation in a worker process: the same scores
+    pooled = search_calibration(model, _Spheres(2, gt), views=(0, 7), progress=False, workers=1)
+    assert pooled.rows == search.rows and pooled.best == search.best
+    with pytest.raises(ValueError, match="workers"):
+        search_calibration(model, _Spheres(2, gt), views=(0, 7), progress=False, workers=-1)
 
 
 def test_search_without_carving_never_carves(monkeypatch):
@@ -128,7 +133,7 @@ def test_a_stored_carving_is_searched_again_without_carving(monkeypatch, tmp_pat
     stored = {"settings": Calibration(carve="view", level=0.01).to_dict(), "split": "val"}
     searched = []
 
-    def search(model, objects, carving=True, progress=True):
+    def search(model, objects, carving=True, progress=True, workers=0):
         searched.append(carving)
         return SimpleNamespace(record=lambda: {"settings": Calibration(level=0.02).to_dict(), "carving": carving},
                                seconds=0.0, best=Calibration(level=0.02), uncalibrated_iou=0.4, best_iou=0.5)

@@ -70,6 +70,37 @@ def test_mirror_carves_what_the_mirror_image_sees_outside():
     assert bool(((one < 0) & (both > 0)).any())  # some inside samples are carved by their mirror image
 
 
+@pytest.mark.parametrize("mirror_axis", [None, 0])
+def test_cone_of_a_mixed_batch_is_each_image_projected_by_its_own_camera(mirror_axis):
+    """The per-view lookup (computed once per view) puts every image's field in its own row: a batch
+    of repeated and different views equals the fields projected through each image's camera."""
+    n, hs, size = 12, 0.6, 32
+    gen = torch.Generator().manual_seed(3)
+    alpha = (torch.rand(5, size, size, generator=gen) > 0.4).float()
+    views = torch.tensor([3, 7, 3, 20, 7])
+    field = silhouette_cone_sdf(alpha, views, n, hs, mirror_axis=mirror_axis)
+    dist = signed_pixel_distance(alpha)[:, None]
+    axis = torch.linspace(-hs, hs, n)
+    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    cams = renderer.Cameras.nmr(views, image_size=size)
+    per_depth = (2.0 * torch.tan(torch.deg2rad(cams.fov_deg) / 2.0) / size)[:, None]
+
+    def expected(pts):
+        pix, depth = cams.project(pts)
+        grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)
+        d = torch.nn.functional.grid_sample(dist, grid, mode="bilinear", padding_mode="border", align_corners=False)
+        return d[:, 0, 0] * depth * per_depth
+
+    want = expected(points)
+    if mirror_axis is not None:
+        flip = torch.ones(3)
+        flip[mirror_axis] = -1.0
+        want = torch.maximum(want, expected(points * flip))
+    assert torch.equal(field, want.reshape(5, n, n, n))
+    with pytest.raises(ValueError, match="views has 4 entries for 5 images"):
+        silhouette_cone_sdf(alpha, views[:4], n, hs)
+
+
 def test_calibration_settings_are_checked():
     with pytest.raises(ValueError, match="carve must be one of"):
         Calibration(carve="hull")
