@@ -220,6 +220,48 @@ class Cameras:
     def device(self) -> torch.device:
         return self.eye.device
 
+    @property
+    def requires_grad(self) -> bool:
+        """Whether any of the cameras' tensors carries a gradient (a pose being optimised, as
+        ``moved`` gives): the render is then differentiable w.r.t. the cameras too."""
+        return any(t.requires_grad for t in (self.eye, self.forward, self.right, self.up, self.fov_deg))
+
+    def detach(self) -> "Cameras":
+        """The same cameras without gradients."""
+        return Cameras(self.eye.detach(), self.forward.detach(), self.right.detach(), self.up.detach(),
+                       self.fov_deg.detach(), self.image_size)
+
+    def moved(self, rotation=None, translation=None) -> "Cameras":
+        """The cameras turned about their eyes and shifted, differentiably (for optimising poses).
+
+        Args:
+            rotation: (3,) or (B, 3) rotation vectors in world axes (radians; the direction is the
+                axis, the length the angle), applied to ``forward``, ``right`` and ``up``; None: none.
+            translation: (3,) or (B, 3) world offsets added to ``eye``; None: none.
+        Returns:
+            Cameras whose tensors carry the gradients of ``rotation`` and ``translation``.
+        """
+        eye, forward, right, up = self.eye, self.forward, self.right, self.up
+        b = self.batch_size
+        if rotation is not None:
+            r = torch.as_tensor(rotation, dtype=self.dtype, device=self.device)
+            r = r.expand(b, 3) if r.shape == (3,) else r
+            if r.shape != (b, 3):
+                raise ValueError(f"rotation must have shape (3,) or ({b}, 3), got {tuple(r.shape)}")
+            zero = torch.zeros_like(r[:, 0])
+            skew = torch.stack([torch.stack([zero, -r[:, 2], r[:, 1]], -1),
+                                torch.stack([r[:, 2], zero, -r[:, 0]], -1),
+                                torch.stack([-r[:, 1], r[:, 0], zero], -1)], -2)
+            rot = torch.linalg.matrix_exp(skew)  # (B, 3, 3), exact and differentiable at 0
+            forward, right, up = ((rot @ v[..., None])[..., 0] for v in (forward, right, up))
+        if translation is not None:
+            t = torch.as_tensor(translation, dtype=self.dtype, device=self.device)
+            t = t.expand(b, 3) if t.shape == (3,) else t
+            if t.shape != (b, 3):
+                raise ValueError(f"translation must have shape (3,) or ({b}, 3), got {tuple(t.shape)}")
+            eye = eye + t
+        return Cameras(eye, forward, right, up, self.fov_deg, self.image_size)
+
     def to(self, device=None, dtype: torch.dtype | None = None) -> "Cameras":
         """The same cameras on another device and/or dtype."""
         f = lambda t: t.to(device=device, dtype=dtype or t.dtype)  # noqa: E731

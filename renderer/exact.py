@@ -28,12 +28,14 @@ def hit_points_exact(grid: SDFGrid, s: torch.Tensor, v: torch.Tensor, b: torch.T
        where the root's derivative blows up.
 
     Args:
-        s: (K, 3) traced points (world, detached); v: (K, 3) unit directions; b: (K,) grid index.
+        s: (K, 3) traced points (world; detached unless the cameras carry a gradient); v: (K, 3) unit
+            directions; b: (K,) grid index.
         p_cons, dt_cons: (K, 3), (K,) the conservative hit points and offsets
             (``renderer.shading.hit_points_conservative``), the fallback.
     Returns:
         p: (K, 3) hit points; dt: (K,) offset along the ray (``depth = t + dt``); differentiable
-        w.r.t. the grid values through the implicit function theorem.
+        w.r.t. the grid values through the implicit function theorem, and w.r.t. ``s`` and ``v``
+        where they carry a gradient (cameras being optimised).
     """
     k = s.shape[0]
     if k == 0:
@@ -75,7 +77,10 @@ def hit_points_exact(grid: SDFGrid, s: torch.Tensor, v: torch.Tensor, b: torch.T
     steep = slope.abs() > GRAZING_COS * grad_q.norm(dim=-1).clamp(min=torch.finfo(s.dtype).tiny)
     ok = found & steep
     safe_slope = torch.where(ok, slope, torch.ones_like(slope))
-    g_root = grid.sample(root.detach(), b)  # ~0 in value, carries d g / d values
+    # ~0 in value; carries d g / d values, and the ray's motion (a camera with a gradient: s and v
+    # then carry it) through the root's own point, so dt gets the implicit derivative of both.
+    moving = root.detach() + (s - s.detach()) + t_star[:, None] * (v - v.detach())
+    g_root = grid.sample(moving, b)
     t_exact = t_star - g_root / safe_slope
     dt = torch.where(ok, t_exact, dt_cons)
     p = s + dt[:, None] * v

@@ -33,7 +33,8 @@ def render(
         trace_settings: the march (steps, threshold).
         backend: "auto", "reference", "cpu" or "cuda" (see renderer.trace.sphere_trace).
     Returns:
-        RenderOutput with (B_c, H, W) maps, differentiable w.r.t. ``grid.values``.
+        RenderOutput with (B_c, H, W) maps, differentiable w.r.t. ``grid.values``, and w.r.t. the
+        cameras' poses where they carry a gradient (``Cameras.moved``; stage 2 is then PyTorch's).
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")

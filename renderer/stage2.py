@@ -24,15 +24,32 @@ from .shading import edge_gradient, shade_reference
 
 def shading_rays(trace: MarchResult, cameras: Cameras, dtype: torch.dtype, device: torch.device) -> ShadingRays:
     """The rays of ``trace`` flattened for stage 2 (contiguous; the cameras in ``dtype`` on ``device``,
-    the grid's): ray r = (b * H + i) * W + j of the (B, H, W) maps belongs to camera b."""
+    the grid's): ray r = (b * H + i) * W + j of the (B, H, W) maps belongs to camera b.
+
+    Where the cameras carry a gradient (``Cameras.requires_grad``), the directions, eyes, traced
+    points and silhouette points carry it too: their values are the march's, and each point moves
+    with its ray at its fixed distance along it (``eye + t * direction``). For the silhouette and
+    grazing points, minima of the SDF along their rays, that is their SDF's exact derivative."""
     cams = cameras.to(device=device, dtype=dtype)
     b, h, w = trace.hit.shape
+    points = trace.points.reshape(-1, 3).contiguous()
+    directions = trace.directions.reshape(-1, 3).contiguous()
+    extreme = trace.extreme_points.reshape(-1, 3).contiguous()
+    if cams.requires_grad:
+        moved_dir = cams.rays()[1].reshape(-1, 3)
+        d_dir = moved_dir - moved_dir.detach()  # zero in value, the directions' gradient
+        eye = cams.eye.repeat_interleave(h * w, dim=0)
+        d_eye = eye - eye.detach()
+        finite = lambda t: torch.nan_to_num(t.reshape(-1, 1), posinf=0.0, neginf=0.0)  # noqa: E731
+        directions = directions + d_dir
+        points = points + d_eye + finite(trace.t) * d_dir
+        extreme = extreme + d_eye + finite(trace.t_extreme) * d_dir
     return ShadingRays(
         hit=trace.hit.reshape(-1).contiguous(),
         t=trace.t.reshape(-1).contiguous(),
-        points=trace.points.reshape(-1, 3).contiguous(),
-        directions=trace.directions.reshape(-1, 3).contiguous(),
-        extreme=trace.extreme_points.reshape(-1, 3).contiguous(),
+        points=points,
+        directions=directions,
+        extreme=extreme,
         t_extreme=trace.t_extreme.reshape(-1).contiguous(),
         steps=trace.steps.reshape(-1).contiguous(),
         camera_grid=trace.grid_index.to(torch.int64).contiguous(),
@@ -58,14 +75,19 @@ def shade_trace(grid: SDFGrid, cameras: Cameras, trace: MarchResult, scene: Scen
             term from PyTorch added to its image; "auto", fused after a fused march with the
             conservative intersection, else the reference.
     Returns:
-        RenderOutput with (B_c, H, W) maps, differentiable w.r.t. ``grid.values``.
+        RenderOutput with (B_c, H, W) maps, differentiable w.r.t. ``grid.values``, and w.r.t. the
+        cameras where they carry a gradient (``Cameras.moved``; the PyTorch stage 2 then runs).
     """
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a Scene, got {type(scene).__name__}")
     if scene.needs_grazing() and trace.graze_gap is None:
         raise ValueError("trace has no grazing points, which gradient='visibility' needs: march it with "
                          "sphere_trace(..., grazing=True)")
-    backend = resolve_stage2(stage2, trace.backend, scene, grid.device)
+    if cameras.requires_grad and stage2 == "fused":
+        raise ValueError("stage2='fused' differentiates the grid only; cameras with a gradient need "
+                         "stage2='reference' or 'auto'")
+    # The fused kernels differentiate the grid only: cameras with a gradient take the PyTorch stage 2.
+    backend = None if cameras.requires_grad else resolve_stage2(stage2, trace.backend, scene, grid.device)
     rays = shading_rays(trace, cameras, grid.dtype, grid.device)
     if backend is None:
         # The plain-autograd specification, its samplings' gradients added into one buffer (the

@@ -57,7 +57,7 @@ def sphere_trace(
     if not grid.unchanged_since_checked():
         require_finite(grid.values, "grid.values")
     gidx = camera_grid_index(grid, cameras)
-    cams = cameras.to(device=grid.device, dtype=grid.dtype)
+    cams = cameras.detach().to(device=grid.device, dtype=grid.dtype)  # the march has no gradient
     origins, directions = cams.rays()
     b, h, w, _ = directions.shape
     n = h * w

@@ -103,3 +103,28 @@ def test_cube_rig_has_26_distinct_views_at_distance():
 def test_bad_camera_arguments_raise(kwargs, word):
     with pytest.raises(ValueError, match=word):
         Cameras.look_at(**kwargs)
+
+
+def test_moved_cameras_turn_about_the_eye_and_shift():
+    """``Cameras.moved``: nothing moved is the same camera; a quarter turn about +y takes a camera
+    on +z looking at the origin to one looking along -x from the same eye; the axes stay
+    orthonormal; the gradient at zero is finite."""
+    cams = Cameras.look_at([[0.0, 0.0, 3.0], [1.0, 2.0, 2.0]], dtype=torch.float64)
+    same = cams.moved(torch.zeros(3, dtype=torch.float64), torch.zeros(2, 3, dtype=torch.float64))
+    for a, b in ((same.eye, cams.eye), (same.forward, cams.forward), (same.right, cams.right), (same.up, cams.up)):
+        torch.testing.assert_close(a, b, atol=1e-15, rtol=0)
+    turned = cams[0].moved(rotation=[0.0, math.pi / 2, 0.0], translation=[0.5, 0.0, 0.0])
+    torch.testing.assert_close(turned.forward[0], torch.tensor([-1.0, 0.0, 0.0], dtype=torch.float64))
+    torch.testing.assert_close(turned.right[0], torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64))
+    torch.testing.assert_close(turned.eye[0], torch.tensor([0.5, 0.0, 3.0], dtype=torch.float64))
+    rot = torch.tensor([[0.3, -0.2, 0.5], [0.0, 0.0, 0.0]], dtype=torch.float64, requires_grad=True)
+    moved = cams.moved(rotation=rot)
+    axes = torch.stack([moved.forward, moved.right, moved.up], -1)
+    torch.testing.assert_close(axes.transpose(1, 2) @ axes, torch.eye(3, dtype=torch.float64).expand(2, 3, 3))
+    assert moved.requires_grad and not cams.requires_grad and not moved.detach().requires_grad
+    (grad,) = torch.autograd.grad(moved.forward.sum() + moved.right[:, 0].sum(), rot)
+    assert torch.isfinite(grad).all() and grad[1].abs().sum() > 0
+    with pytest.raises(ValueError, match="rotation must have shape"):
+        cams.moved(rotation=torch.zeros(3, 3))
+    with pytest.raises(ValueError, match="translation must have shape"):
+        cams.moved(translation=torch.zeros(2))
