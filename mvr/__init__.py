@@ -6,7 +6,7 @@ docs/mvr.md shows the Python API (``reconstruct``, ``Schedule``) as well.
 """
 from .losses import view_image_losses, view_silhouette_losses
 from .metrics import SurfaceDistances, surface_distances
-from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
+from .optimize import CameraPoses, LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
 from .reconstruct import (GridSettings, NoiseSettings, ReconstructionResult, RigSettings, ScoringSettings,
                           TargetSettings, default_scene, reconstruct)
 from .runtime import configure_runtime
@@ -21,7 +21,7 @@ __all__ = [
     "default_scene", "configure_runtime",
     "Target", "TargetImages", "make_target", "load_mesh", "normalise_mesh", "shape_mesh", "MESH_FORMATS",
     "SHAPES", "Shape",
-    "ViewLosses", "LevelReport", "optimise_level", "fill_cavities", "rule_image_size",
+    "ViewLosses", "CameraPoses", "LevelReport", "optimise_level", "fill_cavities", "rule_image_size",
     "view_image_losses", "view_silhouette_losses",
     "surface_distances", "SurfaceDistances",
 ]

@@ -48,6 +48,11 @@ class OptimSettings:
         shuffle_views: visit the views in a new random order each pass (else in rig order).
         fill_cavities: after each pass, close pockets of positive SDF enclosed by the shape (see
             ``fill_cavities``; not in the paper).
+        cameras: refine each camera's pose (a turn about its eye and a shift, ``CameraPoses``) with
+            the shape, by the render's camera gradient (not in the paper; for inexact cameras).
+        camera_lr: Adam's step for the poses (radians for the turn, world units for the shift).
+        camera_levels: the cameras are refined in the schedule's last ``camera_levels`` levels
+            (earlier, the coarse shape's errors would be put into the cameras).
     """
 
     lr: float = 0.05
@@ -69,9 +74,16 @@ class OptimSettings:
     max_seconds: PerLevel = None
     shuffle_views: bool = True
     fill_cavities: bool = True
+    cameras: bool = False
+    camera_lr: float = 0.01
+    camera_levels: int = 1
 
     def __post_init__(self) -> None:
         check_positive(self.lr, "lr")
+        if not isinstance(self.cameras, bool):
+            raise TypeError(f"cameras must be true or false, got {self.cameras!r}")
+        check_positive(self.camera_lr, "camera_lr")
+        check_int(self.camera_levels, "camera_levels", minimum=1)
         if not 0 < self.lr_decay <= 1:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
         betas = tuple(float(b) for b in self.betas)
@@ -178,6 +190,73 @@ def fill_cavities(values: torch.Tensor) -> torch.Tensor:
     return torch.where(mask, -v.abs(), v)
 
 
+class CameraPoses:
+    """Corrections of V camera poses, refined with the shape (``OptimSettings.cameras``): per camera
+    a rotation vector (a turn about its eye, world axes, radians) and a shift of its eye (world),
+    both zero at the start, with their own Adam (step ``lr``). Each camera's pair is a parameter of
+    its own, so an update moves only the cameras whose views were rendered since the last one
+    (Adam would move the others on their old momentum, were they one tensor with zero gradients).
+    """
+
+    def __init__(self, views: int, lr: float):
+        check_int(views, "views", minimum=1)
+        check_positive(lr, "camera_lr")
+        self.rotations = [torch.zeros(3, dtype=torch.float64, requires_grad=True) for _ in range(views)]
+        self.translations = [torch.zeros(3, dtype=torch.float64, requires_grad=True) for _ in range(views)]
+        self.opt = torch.optim.Adam(self.rotations + self.translations, lr=lr)
+
+    @property
+    def rotation(self) -> torch.Tensor:
+        """(V, 3) the rotation vectors (detached)."""
+        return torch.stack([r.detach() for r in self.rotations])
+
+    @property
+    def translation(self) -> torch.Tensor:
+        """(V, 3) the shifts of the eyes (detached)."""
+        return torch.stack([t.detach() for t in self.translations])
+
+    def apply(self, cameras: Cameras, views: torch.Tensor) -> Cameras:
+        """``cameras[views]`` of all V cameras, turned and shifted by their corrections
+        (differentiable in them while grad is enabled)."""
+        if cameras.batch_size != len(self.rotations):
+            raise ValueError(f"{cameras.batch_size} cameras for {len(self.rotations)} pose corrections")
+        index = [int(v) for v in views.reshape(-1).tolist()]
+        rot = torch.stack([self.rotations[v] for v in index]).to(cameras.dtype)
+        shift = torch.stack([self.translations[v] for v in index]).to(cameras.dtype)
+        return cameras[views].moved(rot, shift)
+
+    def step(self) -> None:
+        """One Adam update of the cameras that received a gradient, then their gradients cleared,
+        then the mean turn and the mean shift of all cameras removed: moving every camera alike is
+        moving the shape the other way, which the images cannot tell apart (the rig's corrections
+        of camera noise average out)."""
+        self.opt.step()
+        self.opt.zero_grad(set_to_none=True)
+        with torch.no_grad():
+            for group in (self.rotations, self.translations):
+                mean = torch.stack([p.detach() for p in group]).mean(0)
+                for p in group:
+                    p.sub_(mean)
+
+    def decay(self, factor: float) -> None:
+        """Multiplies Adam's step by ``factor`` (after each pass, as the grid's)."""
+        for group in self.opt.param_groups:
+            group["lr"] *= factor
+
+    def state(self) -> dict:
+        """The corrections and Adam's state (for a checkpoint)."""
+        return {"rotation": self.rotation.clone(), "translation": self.translation.clone(),
+                "adam": self.opt.state_dict()}
+
+    def load(self, state: dict) -> None:
+        """Restores ``state()``'s corrections and Adam's state."""
+        with torch.no_grad():
+            for k, (r, t) in enumerate(zip(self.rotations, self.translations)):
+                r.copy_(state["rotation"][k])
+                t.copy_(state["translation"][k])
+        self.opt.load_state_dict(state["adam"])
+
+
 class ViewLosses:
     """Renders views of one grid and scores them against the targets.
 
@@ -187,10 +266,12 @@ class ViewLosses:
         scene, trace, backend: how to render (the scene must produce "shading", and "silhouette"
             when the silhouette weight is positive).
         settings: the weights.
+        poses: corrections of the cameras refined with the shape (``CameraPoses``), or None.
     """
 
     def __init__(self, cameras: Cameras, images: torch.Tensor, masks: torch.Tensor, scene: Scene,
-                 trace: TraceSettings, backend: str, settings: OptimSettings):
+                 trace: TraceSettings, backend: str, settings: OptimSettings,
+                 poses: Optional[CameraPoses] = None):
         if images.shape[:3] != masks.shape or images.shape[0] != cameras.batch_size:
             raise ValueError(f"images {tuple(images.shape)}, masks {tuple(masks.shape)} and "
                              f"{cameras.batch_size} cameras do not match")
@@ -198,10 +279,15 @@ class ViewLosses:
             raise ValueError(f"images are {tuple(images.shape[1:3])} but cameras render {cameras.image_size}")
         self.cameras, self.images, self.masks = cameras, images, masks.float()
         self.scene, self.trace, self.backend, self.settings = scene, trace, backend, settings
+        self.poses = poses
+
+    def cameras_of(self, views: torch.Tensor) -> Cameras:
+        """The cameras of ``views`` (K,) long, with the poses' corrections where there are any."""
+        return self.cameras[views] if self.poses is None else self.poses.apply(self.cameras, views)
 
     def data_loss(self, grid: SDFGrid, views: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Weighted image + silhouette loss of each of ``views`` (K,) long: (K,) total, image, silhouette."""
-        out = render(grid, self.cameras[views], self.scene, self.trace, self.backend)
+        out = render(grid, self.cameras_of(views), self.scene, self.trace, self.backend)
         s = self.settings
         img = view_image_losses(out.image, self.images[views])
         if s.silhouette_weight > 0:
@@ -337,6 +423,8 @@ def _run_passes(fit: _Fitting, losses: ViewLosses, level: int, seed: int, progre
             pass_updates, timed_out = _update_views(fit, losses, view_loss, order, t_start, max_seconds)
             updates += pass_updates
             step = _end_pass(fit, settings, before)
+            if losses.poses is not None:
+                losses.poses.decay(settings.lr_decay)
             view_loss, img_v, sil_v = losses.all_views(fit.detached())
             new_mean = float(view_loss.mean())
             history.append({"pass": pass_index, "loss_before": mean, "loss_after": new_mean,
@@ -395,6 +483,8 @@ def _update_view(fit: _Fitting, losses: ViewLosses, view: int, hard: bool, mean:
         fit.opt.zero_grad(set_to_none=True)
         total.backward()
         fit.opt.step()
+        if losses.poses is not None:
+            losses.poses.step()
         made += 1
     return made
 

@@ -26,7 +26,7 @@ from sdfcommon.tooling.pictures import labelled_grid
 from sdfcommon.tooling.serialization import load_torch
 
 from .metrics import NORMALISATION, surface_distances
-from .optimize import LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
+from .optimize import CameraPoses, LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
 from .schedule import Schedule
 from .targets import NORMAL_MODES, Target, TargetImages, make_target
 
@@ -189,7 +189,7 @@ def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int) -> Option
                          f"1 to {n_levels}; use another out_dir, or resume=false to start this one afresh")
     return _ResumePoint(next_level=number, values=ckpt["values"], bbox_min=ckpt["bbox_min"],
                         bbox_max=ckpt["bbox_max"], reports=[LevelReport(**r) for r in ckpt["reports"]],
-                        checkpoint=found[-1])
+                        checkpoint=found[-1], poses=ckpt.get("poses"))
 
 
 def perturbed_cameras(cameras: Cameras, offsets: torch.Tensor) -> Cameras:
@@ -326,17 +326,20 @@ class _ResumePoint:
     bbox_max: torch.Tensor
     reports: list
     checkpoint: Path
+    poses: Optional[dict] = None
 
 
 @dataclass(frozen=True)
 class _Fit:
     """What the levels produced: the fitted grid, every level's report (resumed ones first), the
-    last level's (true) cameras and the seconds spent rendering target images."""
+    last level's (true) cameras, the seconds spent rendering target images, and the cameras the
+    optimiser believed in at the end (corrected where ``optim.cameras`` refined them)."""
 
     grid: SDFGrid
     reports: list
     cameras: Cameras
     seconds_images: float
+    believed: Optional[Cameras] = None
 
 
 @dataclass(frozen=True)
@@ -425,9 +428,11 @@ def _starting_grid(plan: _RunPlan, state: Optional[_ResumePoint]) -> tuple[int, 
 def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], progress: bool) -> _Fit:
     """Fits the grid level by level, coarse to fine, from the start or the resume point; each
     finished level is checkpointed and levels.json/csv rewritten."""
-    gen = torch.Generator().manual_seed(int(plan.seed))
-    cam_offsets = torch.randn(26, 3, generator=gen, dtype=torch.float64) * plan.noise.camera_std
+    cam_offsets = _camera_offsets(plan)
     start_level, current, reports = _starting_grid(plan, state)
+    poses = CameraPoses(26, plan.optim.camera_lr) if plan.optim.cameras else None
+    if poses is not None and state is not None and state.poses is not None:
+        poses.load(state.poses)
     seconds_images = 0.0
     cams_true = plan.rig.cameras(16)
     for level in range(start_level, len(plan.resolutions)):
@@ -439,37 +444,56 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
         t0 = time.perf_counter()
         views = tgt.render(cams_true, plan.scene)
         seconds_images += time.perf_counter() - t0
-        losses = _level_losses(plan, views, cams_true, cam_offsets, level)
+        refine = poses is not None and level >= len(plan.resolutions) - plan.optim.camera_levels
+        losses = _level_losses(plan, views, cams_true, cam_offsets, level, poses if refine else None)
         desc = f"level {level + 1}/{len(plan.resolutions)} {res}^3 {size}px"
         current, report = optimise_level(current, losses, level, plan.seed, progress, desc)
         reports.append(report)
         log.info("%s: %d passes, %d updates, loss %.3e -> %.3e, %.1fs (%s)", desc, report.passes, report.updates,
                  report.loss_start, report.loss_end, report.seconds, report.stop_reason)
-        _save_level(plan, level, current, reports)
-    return _Fit(grid=current, reports=reports, cameras=cams_true, seconds_images=seconds_images)
+        _save_level(plan, level, current, reports, poses)
+    believed = _believed_cameras(plan, cams_true, cam_offsets)
+    if poses is not None:
+        with torch.no_grad():
+            believed = poses.apply(believed, torch.arange(believed.batch_size)).detach()
+    return _Fit(grid=current, reports=reports, cameras=cams_true, seconds_images=seconds_images, believed=believed)
+
+
+def _camera_offsets(plan: _RunPlan) -> torch.Tensor:
+    """(26, 3) the seeded offsets of the camera noise (zero without it)."""
+    gen = torch.Generator().manual_seed(int(plan.seed))
+    return torch.randn(26, 3, generator=gen, dtype=torch.float64) * plan.noise.camera_std
+
+
+def _believed_cameras(plan: _RunPlan, cams_true: Cameras, cam_offsets: torch.Tensor) -> Cameras:
+    """The cameras the optimiser is given: the true ones moved by ``cam_offsets`` (26, 3) where there
+    is camera noise."""
+    return perturbed_cameras(cams_true, cam_offsets) if plan.noise.camera_std > 0 else cams_true
 
 
 def _level_losses(plan: _RunPlan, views: TargetImages, cams_true: Cameras, cam_offsets: torch.Tensor,
-                  level: int) -> ViewLosses:
+                  level: int, poses: Optional[CameraPoses] = None) -> ViewLosses:
     """One level's losses: the target views with the image noise of ``plan.noise`` (seeded per
-    level), seen from the cameras the optimiser believes in (moved by ``cam_offsets`` (26, 3)
-    where there is camera noise)."""
+    level), seen from the cameras the optimiser believes in (``_believed_cameras``), corrected by
+    ``poses`` where the cameras are refined."""
     images, masks = views.images, views.masks.float()
     if plan.noise.image_std > 0:
         g = torch.Generator().manual_seed(int(plan.seed) * 7919 + level)
         images = images + plan.noise.image_std * torch.randn(images.shape, generator=g)
         masks = masks + plan.noise.image_std * torch.randn(masks.shape, generator=g)
-    cams_opt = perturbed_cameras(cams_true, cam_offsets) if plan.noise.camera_std > 0 else cams_true
-    return ViewLosses(cams_opt, images, masks, plan.scene, plan.trace, plan.backend, plan.optim)
+    return ViewLosses(_believed_cameras(plan, cams_true, cam_offsets), images, masks, plan.scene, plan.trace,
+                      plan.backend, plan.optim, poses)
 
 
-def _save_level(plan: _RunPlan, level: int, grid: SDFGrid, reports: list[LevelReport]) -> None:
-    """The finished level's checkpoint (the point a rerun resumes from) and levels.json/csv
-    (``level``: its 0-based index; the checkpoint is numbered ``level + 1``, as the log counts)."""
+def _save_level(plan: _RunPlan, level: int, grid: SDFGrid, reports: list[LevelReport],
+                poses: Optional[CameraPoses] = None) -> None:
+    """The finished level's checkpoint (the point a rerun resumes from; with the cameras'
+    corrections where they are refined) and levels.json/csv (``level``: its 0-based index; the
+    checkpoint is numbered ``level + 1``, as the log counts)."""
     outputs.write_torch(_checkpoint_path(plan.out, level + 1), {
         "fingerprint": plan.fingerprint, "level": level + 1, "values": grid.values.detach().clone(),
         "bbox_min": grid.bbox_min, "bbox_max": grid.bbox_max,
-        "reports": [asdict(r) for r in reports]})
+        "reports": [asdict(r) for r in reports], "poses": poses.state() if poses is not None else None})
     _write_levels(plan.out, reports)
 
 
@@ -485,6 +509,7 @@ def _evaluate_and_write(plan: _RunPlan, tgt: Target, fit: _Fit, state: Optional[
                        levels=float(sum(r.seconds for r in fit.reports)),
                        evaluation=time.perf_counter() - t_eval, run_start=t_run)
     metrics.update(_describe_run(seconds, state, fit.reports, final, mesh, tgt, backend_used))
+    metrics.update(_camera_errors(plan, tgt, fit))
     outputs.write_json(plan.out / "metrics.json", metrics)
     log.info("hausdorff_rel %s chamfer_rel %s in %.1fs -> %s", metrics.get("hausdorff_rel"),
              metrics.get("chamfer_rel"), metrics["seconds"], plan.out)
@@ -559,6 +584,29 @@ def _describe_run(seconds: _Seconds, state: Optional[_ResumePoint], reports: lis
         "backend": backend_used,
         "threads": torch.get_num_threads(),
     }
+
+
+def _camera_errors(plan: _RunPlan, tgt: Target, fit: _Fit) -> dict:
+    """Where the optimiser's cameras are not the true ones (camera noise) or were refined, as given
+    (``_given``) and at the end (``_final``): the mean distance of their eyes from the true eyes
+    (world), the mean angle between their viewing directions (degrees), and the mean distance
+    between where the target's vertices project in the true and the believed images (pixels, at
+    the last level's size): the part of the error the images show."""
+    if plan.noise.camera_std == 0 and not plan.optim.cameras:
+        return {}
+    given = _believed_cameras(plan, fit.cameras, _camera_offsets(plan))
+    vertices = torch.as_tensor(np.asarray(tgt.mesh.vertices), dtype=torch.float64)
+    vertices = vertices[torch.randperm(len(vertices), generator=torch.Generator().manual_seed(0))[:2000]]
+    true = fit.cameras.to(dtype=torch.float64)
+    true_pix = true.project(vertices)[0]
+    out = {}
+    for name, cams in (("given", given), ("final", fit.believed if fit.believed is not None else given)):
+        cams = cams.to(dtype=torch.float64)
+        cos = (cams.forward * true.forward).sum(-1).clamp(-1.0, 1.0)
+        out[f"camera_eye_error_{name}"] = float((cams.eye - true.eye).norm(dim=-1).mean())
+        out[f"camera_angle_error_deg_{name}"] = float(torch.rad2deg(torch.acos(cos)).mean())
+        out[f"camera_reprojection_px_{name}"] = float((cams.project(vertices)[0] - true_pix).norm(dim=-1).mean())
+    return out
 
 
 def _write_levels(out: Path, reports: list[LevelReport]) -> None:

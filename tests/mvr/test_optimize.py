@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from mvr import OptimSettings, ViewLosses, make_target, optimise_level
+from mvr.optimize import CameraPoses
 from mvr.reconstruct import RigSettings, default_scene
 from renderer import SDFGrid, TraceSettings
 
@@ -58,3 +59,33 @@ def test_view_losses_bad_input(problem):
         ViewLosses(good.cameras, good.images[:3], good.masks[:3], good.scene, good.trace, "auto", good.settings)
     with pytest.raises(ValueError, match="one grid"):
         optimise_level(SDFGrid(grid.values.expand(2, -1, -1, -1).clone()), good, progress=False)
+
+
+def test_camera_poses_move_only_the_rendered_cameras_and_keep_no_common_motion():
+    """CameraPoses: zero corrections give the cameras back; an update moves the cameras whose
+    views had a gradient, then the common turn and shift of all are removed; its state restores."""
+    cams = RigSettings().cameras(8).to(dtype=torch.float64)
+    poses = CameraPoses(26, lr=0.01)
+    same = poses.apply(cams, torch.arange(26))
+    torch.testing.assert_close(same.eye, cams.eye, atol=0, rtol=0)
+    torch.testing.assert_close(same.forward, cams.forward, atol=1e-15, rtol=0)
+    moved = poses.apply(cams, torch.tensor([3, 7]))
+    (moved.eye[:, 0].sum() + moved.forward[:, 1].sum()).backward()
+    poses.step()
+    changed = (poses.rotation.norm(dim=1) + poses.translation.norm(dim=1)) > 0
+    assert changed[[3, 7]].all()
+    torch.testing.assert_close(poses.translation.mean(0), torch.zeros(3, dtype=torch.float64), atol=1e-15, rtol=0)
+    torch.testing.assert_close(poses.rotation.mean(0), torch.zeros(3, dtype=torch.float64), atol=1e-15, rtol=0)
+    # the others moved only by the common part removed: all alike
+    others = [v for v in range(26) if v not in (3, 7)]
+    assert torch.equal(poses.translation[others], poses.translation[others[:1]].expand(len(others), 3))
+    state = poses.state()
+    again = CameraPoses(26, lr=0.01)
+    again.load(state)
+    assert torch.equal(again.rotation, poses.rotation) and torch.equal(again.translation, poses.translation)
+    with pytest.raises(ValueError, match="26 cameras for 4 pose corrections"):
+        CameraPoses(4, lr=0.01).apply(cams, torch.arange(4))
+    with pytest.raises(ValueError, match="camera_levels must be"):
+        OptimSettings(cameras=True, camera_levels=0)
+    with pytest.raises(TypeError, match="cameras must be true or false"):
+        OptimSettings(cameras="yes")
