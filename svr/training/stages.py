@@ -20,7 +20,7 @@ from typing import Any, Optional
 import numpy as np
 import pytorch_lightning as pl
 from hydra.utils import instantiate
-from pytorch_lightning.callbacks import ModelCheckpoint
+from pytorch_lightning.callbacks import ModelCheckpoint, ProgressBar
 from pytorch_lightning.utilities.exceptions import SIGTERMException
 
 import renderer
@@ -155,6 +155,10 @@ def build_trainer(settings: TrainSettings, stage: str, run: RunFolder, stop: Sto
     stage_settings = settings.stage.of(stage)
     stage_dir = run.stage_dir(stage)
     callbacks = _instantiate_group(settings.callbacks)
+    if settings.trainer.get("enable_progress_bar", True) is False:
+        # trainer.enable_progress_bar=false alone turns the bars off: Lightning refuses a progress
+        # bar callback beside it, and callbacks.progress_bar is one by default.
+        callbacks = [cb for cb in callbacks if not isinstance(cb, ProgressBar)]
     for cb in callbacks:
         if isinstance(cb, ModelCheckpoint) and cb.dirpath is None:
             cb.dirpath = str(run.checkpoints(stage))

@@ -218,6 +218,19 @@ class NaNLoss(SVRLightningModule):
                            terms.laplacian)
 
 
+def test_turning_the_progress_bar_off_is_one_setting(tmp_path, data_overrides):
+    """trainer.enable_progress_bar=false alone (callbacks.progress_bar stays the default TQDM bar):
+    the trainer is built without the bar; before, Lightning refused the pair in a multi-line error."""
+    overrides = [o for o in tiny_overrides(data_overrides) if o != "callbacks.progress_bar=null"]
+    cfg = compose_train(overrides)
+    assert cfg.callbacks.progress_bar is not None and cfg.trainer.enable_progress_bar is False
+    trainer = build_trainer(build_settings(cfg), "coarse", RunFolder(tmp_path), StopRequest(tmp_path))
+    assert trainer.progress_bar_callback is None
+    shown = build_trainer(build_settings(compose_train([*overrides, "trainer.enable_progress_bar=true"])),
+                          "coarse", RunFolder(tmp_path / "b"), StopRequest(tmp_path / "b"))
+    assert shown.progress_bar_callback is not None
+
+
 @pytest.mark.parametrize("bad_gradient", [False, True])
 def test_non_finite_steps_are_skipped(tmp_path, data_overrides, bad_gradient):
     cfg = compose_train(tiny_overrides(data_overrides, 3, "trainer.val_check_interval=100"))
