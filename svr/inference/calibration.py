@@ -127,9 +127,10 @@ def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.
 def _view_lookup(view: int, size: int, resolution: int, half_side: float, flip_axis: Optional[int],
                  device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where each sample of the N^3 grid (mirrored across ``flip_axis`` when not None) projects in
-    NMR view ``view``'s S x S image, as ``grid_sample`` coordinates (1, 1, N^3, 2), and the world size
-    of one pixel per unit of depth, and each sample's depth (N^3,). The same for every image from that view, so it is computed
-    once: projecting the grid for each image was most of an evaluation's prediction time."""
+    NMR view ``view``'s S x S image: ``grid_sample`` coordinates (1, 1, N^3, 2), the camera's
+    ``pixel_angle`` (1,) (a pixel's world size per unit of depth) and each sample's depth (N^3,).
+    The same for every image from that view, so it is computed once: projecting the grid for each
+    image was most of an evaluation's prediction time."""
     axis = torch.linspace(-half_side, half_side, resolution, dtype=torch.float32, device=device)
     points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     if flip_axis is not None:
@@ -137,10 +138,9 @@ def _view_lookup(view: int, size: int, resolution: int, half_side: float, flip_a
         flip[flip_axis] = -1.0
         points = points * flip
     cams = renderer.Cameras.nmr(torch.tensor([view]), image_size=size).to(device, torch.float32)
-    pixel_per_depth = 2.0 * torch.tan(torch.deg2rad(cams.fov_deg) / 2.0) / size  # (1,)
     pix, depth = cams.project(points)
     grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
-    return grid, pixel_per_depth, depth[0]
+    return grid, cams.pixel_angle, depth[0]
 
 
 def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: int, half_side: float,
