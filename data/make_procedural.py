@@ -2,7 +2,8 @@
 
     python data/make_procedural.py [--preset demo|bench] [--cache-dir data/cache | --out DIR]
                                    [--train N --val N --test N] [--categories chair mug ...] [--seed 0]
-                                   [--supersample 3] [--voxel-rule protocol|centre] [--workers N]
+                                   [--supersample 3] [--voxel-rule protocol|centre] [--extra-views K]
+                                   [--workers N]
 
 ``--preset`` takes the sizes and settings of ``data=procedural`` (demo, the default) or
 ``data=procedural_bench`` (configs/data/*.yaml); the other options override them. With --cache-dir
@@ -33,7 +34,8 @@ def preset_settings(name: str) -> dict:
     """The dataset settings of a data preset, as hydra composes ``data=<preset>`` for training."""
     cfg = compose("eval", [f"data={PRESETS[name]}"]).data
     return {"categories": cfg.categories or (), "train": cfg.train, "val": cfg.val, "test": cfg.test,
-            "seed": cfg.data_seed, "supersample": cfg.supersample, "voxel_rule": cfg.voxel_rule}
+            "seed": cfg.data_seed, "supersample": cfg.supersample, "voxel_rule": cfg.voxel_rule,
+            "extra_views": cfg.extra_views}
 
 
 def folder_bytes(path: Path) -> int:
@@ -56,11 +58,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--supersample", type=int, default=None, help="rays per pixel side")
     parser.add_argument("--voxel-rule", default=None, choices=VOXEL_RULES,
                         help="ground-truth voxels: the benchmark's voxelisation (protocol) or centre inside")
+    parser.add_argument("--extra-views", type=int, default=None,
+                        help="extra random views per training object (any azimuth, elevation 10-50 degrees)")
     parser.add_argument("--workers", type=int, default=default_workers(),
                         help="generating processes (default: one per core; 0: this process)")
     args = parser.parse_args(argv)
     values = preset_settings(args.preset)
-    for key in ("train", "val", "test", "seed", "supersample", "voxel_rule"):
+    for key in ("train", "val", "test", "seed", "supersample", "voxel_rule", "extra_views"):
         if getattr(args, key) is not None:
             values[key] = getattr(args, key)
     if args.categories:

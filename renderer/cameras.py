@@ -12,7 +12,6 @@ give the axes.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Sequence, Union
 
@@ -106,7 +105,7 @@ class Cameras:
         dtype: torch.dtype = torch.float32,
         device: Union[str, torch.device] = "cpu",
         distance: float = NMR_DISTANCE,
-        elevation_deg: float = NMR_ELEVATION_DEG,
+        elevation_deg: Union[float, Sequence[float], torch.Tensor] = NMR_ELEVATION_DEG,
     ) -> "Cameras":
         """The NMR ShapeNet benchmark cameras for view indices (B,) (0..23 for the dataset's views).
 
@@ -116,19 +115,25 @@ class Cameras:
         of 30 degrees, and the benchmark's left-handed axes ``z_c = normalize(at - eye)``,
         ``x_c = normalize(up x z_c)``, ``y_c = z_c x x_c`` (``at`` the origin, ``up`` +y): here
         ``right = x_c`` (the mirror image of ``look_at``) and ``up = y_c``. Fractional view indices
-        are allowed (azimuth ``-15 * view`` degrees).
+        are allowed (azimuth ``-15 * view`` degrees), and so is one elevation per view (a (B,)
+        ``elevation_deg``, each in (-90, 90)): views the dataset does not hold.
         """
         v = torch.as_tensor(views, dtype=torch.float64).reshape(-1)
         if v.numel() == 0:
             raise ValueError("views must hold at least one view index")
         if not bool(torch.isfinite(v).all()):
             raise ValueError("views must be finite")
+        el = torch.as_tensor(elevation_deg, dtype=torch.float64).reshape(-1)
+        if el.numel() not in (1, v.numel()):
+            raise ValueError(f"elevation_deg must be one number or one per view ({v.numel()}), got {el.numel()}")
+        if not bool(((el > -90.0) & (el < 90.0)).all()):
+            raise ValueError(f"elevation_deg must lie in (-90, 90) degrees, got {el.tolist()[:4]}")
         az = torch.deg2rad(-15.0 * v)
-        el = math.radians(elevation_deg)
+        el = torch.deg2rad(el).expand_as(az)
         eye = torch.stack([
-            distance * math.cos(el) * torch.sin(az),
-            torch.full_like(az, distance * math.sin(el)),
-            -distance * math.cos(el) * torch.cos(az),
+            distance * torch.cos(el) * torch.sin(az),
+            distance * torch.sin(el),
+            -distance * torch.cos(el) * torch.cos(az),
         ], dim=-1)
         return cls._build(eye, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), NMR_FOV_DEG, image_size, dtype, device,
                           left_handed=True)

@@ -126,7 +126,8 @@ def image_loss(
     Args:
         sdf: (B, N, N, N) predicted SDF over ``[-half_side, half_side]^3``.
         images: (B, V, 4, H, W) dataset RGBA in [0, 1] (RGB on the scene's background).
-        view_ids: (B, V) the NMR view of each image.
+        view_ids: (B, V) the NMR view of each image, or (B, V, 2) rows of (view, elevation in degrees)
+            (``svr.data.types.SVRBatch.views``).
         scene: what to render; with "shading" in its effects the RGB is compared too.
         render_size: render side; the images are area-downsampled to it (a divisor of H).
         silhouette_kind: see ``silhouette_loss``.
@@ -134,7 +135,7 @@ def image_loss(
         ImageLoss.
     """
     check_shape(images, "images", "B, V, 4, H, W")
-    if images.shape[:2] != view_ids.shape:
+    if images.shape[:2] != view_ids.shape[:2]:
         raise ValueError(f"images {tuple(images.shape[:2])} and view_ids {tuple(view_ids.shape)} "
                          f"must agree on (B, V)")
     if not scene.wants("silhouette"):

@@ -53,6 +53,10 @@ class SVRDataModule(pl.LightningDataModule):
         prepared_dir: where the memory-mapped ``.npy`` files are or go (default: root).
         prepare: ``prepare_data()`` converts missing ``.npy`` files (one-time, writes ~13 GB for the
             full NMR set).
+        extra_view_share: the probability that a drawn training view is one of the training
+            split's extra views (any azimuth, other elevations: ``svr.data.datasets.NMRDataset``);
+            0: the 24 NMR views only. NMR ShapeNet has none; the procedural data's ``extra_views``
+            and the mesh builder make them.
     """
 
     root: Path
@@ -63,7 +67,7 @@ class SVRDataModule(pl.LightningDataModule):
                  samples_per_epoch: Optional[int] = None, category_balanced: bool = False,
                  val_views: Optional[Sequence[int]] = None, val_objects_per_category: Optional[int] = None,
                  num_workers: int = 0, pin_memory: bool = False, seed: int = 0, black_background: str = "composite",
-                 prepared_dir: Optional[PathLike] = None, prepare: bool = True):
+                 prepared_dir: Optional[PathLike] = None, prepare: bool = True, extra_view_share: float = 0.0):
         super().__init__()
         check_int(batch_size, "batch_size", minimum=1)
         check_int(eval_batch_size, "eval_batch_size", minimum=1)
@@ -84,6 +88,9 @@ class SVRDataModule(pl.LightningDataModule):
         self.black_background = black_background
         self.prepared_dir = None if prepared_dir is None else Path(prepared_dir).expanduser()
         self.prepare = prepare
+        if not 0.0 <= float(extra_view_share) < 1.0:
+            raise ValueError(f"extra_view_share must be in [0, 1), got {extra_view_share!r}")
+        self.extra_view_share = float(extra_view_share)
         self._sets: dict[str, NMRDataset] = {}
         self._sampler: Optional[ObjectViewSampler] = None
 
@@ -130,7 +137,8 @@ class SVRDataModule(pl.LightningDataModule):
         if self._sampler is None:
             ds = self.dataset("train")
             n = self.samples_per_epoch or max(1, len(ds) * NUM_VIEWS // self.views_per_sample)
-            self._sampler = ObjectViewSampler(ds.counts, self.views_per_sample, n, self.seed, self.category_balanced)
+            self._sampler = ObjectViewSampler(ds.counts, self.views_per_sample, n, self.seed, self.category_balanced,
+                                              extra_views=ds.extra_views, extra_share=self.extra_view_share)
         return self._sampler
 
     def _loader(self, dataset: Dataset, batch_size: int, loader: type = DataLoader, **kwargs) -> DataLoader:
@@ -181,7 +189,7 @@ class NMRDataModule(SVRDataModule):
                  category_balanced: bool = False, val_views: Optional[Sequence[int]] = None,
                  val_objects_per_category: Optional[int] = None, num_workers: int = 0, pin_memory: bool = False,
                  seed: int = 0, black_background: str = "composite", prepared_dir: Optional[PathLike] = None,
-                 prepare: bool = True):
+                 prepare: bool = True, extra_view_share: float = 0.0):
         if root is None or str(root).strip() in ("", "???"):
             raise ValueError("root must name the folder with the NMR ShapeNet npz files "
                              "(set data.root=/path/to/NMR on the command line)")
@@ -190,7 +198,7 @@ class NMRDataModule(SVRDataModule):
             raise FileNotFoundError(f"NMR data folder does not exist: {root} (check data.root)")
         super().__init__(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
                          val_views, val_objects_per_category, num_workers, pin_memory, seed, black_background,
-                         prepared_dir, prepare)
+                         prepared_dir, prepare, extra_view_share)
         self._set_data(root, resolve_categories(root, categories), load_shading(root))
 
 
@@ -209,6 +217,8 @@ class ProceduralDataModule(SVRDataModule):
         voxel_rule: "protocol" (default) or "centre" ground-truth voxels (``ProceduralSettings``).
         generation_workers: processes that generate the dataset when it is missing (0: this one;
             None: one per core). Not part of the dataset's identity.
+        extra_views: extra random views of each training object (``ProceduralSettings``), which
+            ``extra_view_share`` lets training draw.
         The other arguments are SVRDataModule's.
     """
 
@@ -218,17 +228,17 @@ class ProceduralDataModule(SVRDataModule):
                  samples_per_epoch: Optional[int] = None, category_balanced: bool = False,
                  val_views: Optional[Sequence[int]] = None, val_objects_per_category: Optional[int] = None,
                  num_workers: int = 0, pin_memory: bool = False, seed: int = 0, progress: bool = True,
-                 generation_workers: Optional[int] = None):
+                 generation_workers: Optional[int] = None, extra_views: int = 0, extra_view_share: float = 0.0):
         if generation_workers is None:
             generation_workers = default_workers()
         generation_workers = check_int(generation_workers, "generation_workers", minimum=0)
         settings = ProceduralSettings(tuple(categories or ()), train, val, test, int(data_seed), supersample,
-                                      voxel_rule)
+                                      voxel_rule, extra_views)
         # a relative path: from the working directory, as every path
         cache = Path(default_data_dir() if cache_dir is None else cache_dir).expanduser().resolve()
         super().__init__(batch_size, eval_batch_size, views_per_sample, samples_per_epoch, category_balanced,
                          val_views, val_objects_per_category, num_workers, pin_memory, seed, "composite",
-                         None, False)
+                         None, False, extra_view_share)
         self.generation_workers = generation_workers
         self.settings = settings
         self.cache_dir = cache

@@ -18,8 +18,10 @@ import torch
 from torch.utils.data import Dataset
 
 from sdfcommon.tooling.checks import check_int
+from renderer import NMR_ELEVATION_DEG
 from svr.nmr.format import (BACKGROUND_MODES, KINDS, NUM_VIEWS, PathLike, check_npz, check_split, check_view_ids,
-                            images_to_float, nmr_file, open_prepared, read_npz, resolve_categories)
+                            images_to_float, nmr_file, open_extra_views, open_prepared, read_npz,
+                            resolve_categories)
 
 
 class NMRDataset(Dataset):
@@ -34,6 +36,11 @@ class NMRDataset(Dataset):
     * ``object_index``: int, the object's row in its category's files.
 
     ``views(n, view_ids)`` and ``voxels(n)`` read just what a training sample needs.
+
+    Extra views (``svr.nmr.format.extra_view_files``, which the procedural data and the mesh builder
+    write on request for the train split): ``extra_views`` = K of every object, addressed by the view
+    ids 24 .. 23 + K of ``views``, ``images_uint8`` and ``cameras``; items of ``__getitem__`` (and
+    the evaluation) keep to the 24.
 
     The arrays are opened lazily in each process (and dropped when the dataset is pickled to a
     worker), as memory maps of the prepared ``.npy`` files when present (validated against the npz
@@ -86,7 +93,14 @@ class NMRDataset(Dataset):
                               f"files into memory in every process (run data/prepare_nmr.py once to share "
                               f"one memory-mapped copy)", RuntimeWarning, stacklevel=2)
         self.offsets = np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
+        extras = [open_extra_views(self.root, cid, split, n) for (cid, _), n in zip(self.categories, self.counts)]
+        counts = {None if e is None else int(e[0].shape[1]) for e in extras}
+        if len(counts) > 1:
+            raise ValueError(f"{self.root}: the categories of split {split!r} hold different numbers of extra "
+                             f"views ({sorted(counts, key=str)}); every category needs the same")
+        self.extra_views: int = counts.pop() or 0
         self._arrays: Optional[list[tuple[np.ndarray, np.ndarray]]] = None
+        self._extras: Optional[list[Optional[tuple[np.ndarray, np.ndarray]]]] = None
 
     # ------------------------------------------------------------------ arrays
     def _open(self) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -101,10 +115,43 @@ class NMRDataset(Dataset):
             self._arrays = arrays
         return self._arrays
 
+    def _open_extras(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        if self._extras is None:
+            self._extras = [open_extra_views(self.root, cid, self.split, n)
+                            for (cid, _), n in zip(self.categories, self.counts)]
+        return self._extras
+
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
         state["_arrays"] = None  # workers reopen the memory maps instead of receiving copies
+        state["_extras"] = None
         return state
+
+    def _split_ids(self, view_ids: Sequence[int]) -> np.ndarray:
+        ids = np.asarray(view_ids, dtype=np.int64).reshape(-1)
+        if ids.size and not ((ids >= 0) & (ids < NUM_VIEWS + self.extra_views)).all():
+            raise IndexError(f"view ids must lie in [0, {NUM_VIEWS + self.extra_views}) ({NUM_VIEWS} NMR views and "
+                             f"{self.extra_views} extra), got {ids.tolist()}")
+        return ids
+
+    def cameras(self, index: int, view_ids: Sequence[int]) -> torch.Tensor:
+        """(V, 2) float32 rows of (NMR view coordinate, elevation in degrees) of the views
+        (``svr.nmr.views.view_cameras``): (k, 30) for NMR view k, ``(-azimuth / 15, elevation)`` for
+        an extra view."""
+        ids = self._split_ids(view_ids)
+        out = np.stack([ids.astype(np.float32), np.full(len(ids), NMR_ELEVATION_DEG, np.float32)], axis=1)
+        extra = ids >= NUM_VIEWS
+        if extra.any():
+            c, o = self.locate(index)
+            angles = np.asarray(self._open_extras()[c][1][o][ids[extra] - NUM_VIEWS], dtype=np.float32)
+            out[extra, 0] = -angles[:, 0] / 15.0
+            out[extra, 1] = angles[:, 1]
+        return torch.from_numpy(out)
+
+    def nearest_nmr_views(self, index: int, view_ids: Sequence[int]) -> torch.Tensor:
+        """(V,) long: each view itself for the 24, the NMR view nearest in azimuth for an extra one."""
+        cams = self.cameras(index, view_ids)
+        return torch.round(cams[:, 0]).long() % NUM_VIEWS
 
     # ------------------------------------------------------------------ indexing
     def __len__(self) -> int:
@@ -125,7 +172,14 @@ class NMRDataset(Dataset):
         images = self._open()[c][0]
         if view_ids is None:
             return np.array(images[o])  # a copy: the memory map is read-only
-        return np.asarray(images[o][np.asarray(view_ids, dtype=np.int64)])
+        ids = self._split_ids(view_ids)
+        if (ids < NUM_VIEWS).all():
+            return np.asarray(images[o][ids])
+        out = np.empty((len(ids), *images.shape[2:]), dtype=np.uint8)
+        extra = ids >= NUM_VIEWS
+        out[~extra] = images[o][ids[~extra]]
+        out[extra] = self._open_extras()[c][0][o][ids[extra] - NUM_VIEWS]
+        return out
 
     def silhouettes(self, view: int) -> np.ndarray:
         """(N, 64, 64) uint8 alpha channel of one view of every object, in dataset order (one strided
@@ -165,7 +219,8 @@ class TrainViews(Dataset):
     """Training items keyed by ``(object index, view ids)`` (see ``ObjectViewSampler``).
 
     Item: images (V, 4, 64, 64) float32, view_ids (V,) long, voxels (32, 32, 32) bool, category,
-    object_index (ints).
+    object_index (ints); with an extra view among the ids (>= 24) also cameras (V, 2)
+    (``NMRDataset.cameras``), and view_ids then holds the nearest NMR views.
     """
 
     def __init__(self, objects: NMRDataset):
@@ -177,13 +232,17 @@ class TrainViews(Dataset):
     def __getitem__(self, key) -> dict:
         obj, views = key
         c, o = self.objects.locate(int(obj))
-        return {
+        item = {
             "images": self.objects.views(obj, views),
             "view_ids": torch.as_tensor(views, dtype=torch.long),
             "voxels": self.objects.voxels(obj),
             "category": c,
             "object_index": o,
         }
+        if max(views) >= NUM_VIEWS:  # an extra view: its camera, and the nearest NMR view as its id
+            item["cameras"] = self.objects.cameras(obj, views)
+            item["view_ids"] = self.objects.nearest_nmr_views(obj, views)
+        return item
 
 
 class EvalViews(Dataset):

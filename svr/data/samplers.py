@@ -78,13 +78,28 @@ class ObjectViewSampler(RankShardedSampler):
         counts: objects per category, in the dataset's order.
         views_per_sample: V (1..24).
         samples_per_epoch: keys per epoch, all ranks together.
+        extra_views, extra_share: K extra views per object (ids ``num_views .. num_views + K - 1``,
+            ``svr.data.datasets.NMRDataset``), and the probability that a drawn view (the input
+            and the supervising ones alike) is one of them; 0 (the default): only the NMR views,
+            in the same stream as without extra views.
         rank, world_size: see ``RankShardedSampler`` (default: the process group's).
     """
 
     def __init__(self, counts: Sequence[int], views_per_sample: int = 2, samples_per_epoch: int = 1000,
                  seed: int = 0, category_balanced: bool = False, num_views: int = NUM_VIEWS,
-                 rank: Optional[int] = None, world_size: Optional[int] = None):
+                 rank: Optional[int] = None, world_size: Optional[int] = None, extra_views: int = 0,
+                 extra_share: float = 0.0):
         super().__init__(rank, world_size)
+        check_int(extra_views, "extra_views", minimum=0)
+        if not 0.0 <= float(extra_share) < 1.0:
+            raise ValueError(f"extra_share must be in [0, 1), got {extra_share!r}")
+        if extra_share > 0 and extra_views == 0:
+            raise ValueError(f"extra_share is {extra_share} but the training split holds no extra views; generate "
+                             f"them (the data's extra_views) or set extra_share to 0")
+        if extra_share > 0 and views_per_sample > num_views + extra_views:
+            raise ValueError(f"views_per_sample ({views_per_sample}) exceeds the {num_views + extra_views} views")
+        self.extra_views = int(extra_views)
+        self.extra_share = float(extra_share)
         self.counts = [int(c) for c in counts]
         if sum(self.counts) == 0:
             raise ValueError("the training split holds no objects")
@@ -129,7 +144,13 @@ class ObjectViewSampler(RankShardedSampler):
                 obj = int(offsets[c] + rng.integers(self.counts[c]))
             else:
                 obj = int(rng.integers(total))
-            views = rng.choice(self.num_views, size=self.views_per_sample, replace=False)
+            if self.extra_share > 0:
+                p = np.concatenate([np.full(self.num_views, (1.0 - self.extra_share) / self.num_views),
+                                    np.full(self.extra_views, self.extra_share / self.extra_views)])
+                views = rng.choice(self.num_views + self.extra_views, size=self.views_per_sample, replace=False,
+                                   p=p / p.sum())
+            else:
+                views = rng.choice(self.num_views, size=self.views_per_sample, replace=False)
             yield obj, tuple(int(v) for v in views)
 
     def __iter__(self) -> Iterator[tuple[int, tuple[int, ...]]]:

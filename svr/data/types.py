@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import torch
 
@@ -40,6 +41,10 @@ class SVRBatch:
         voxels: (B, 32, 32, 32) bool solid voxels in the NMR voxel frame (svr/nmr/voxels.py).
         category: (B,) long index into the data module's ``categories`` list.
         object_index: (B,) long index of the object within its category and split.
+        cameras: None where every view is one of the 24 NMR views; else (B, V, 2) float32 rows of
+            (view, elevation in degrees) for ``svr.nmr.views.view_cameras``: a batch with extra
+            training views (``svr.data.datasets.NMRDataset``: any azimuth, other elevations), whose
+            ``view_ids`` then hold the nearest NMR view of each.
     """
 
     images: torch.Tensor
@@ -47,23 +52,39 @@ class SVRBatch:
     voxels: torch.Tensor
     category: torch.Tensor
     object_index: torch.Tensor
+    cameras: Optional[torch.Tensor] = None
+
+    @property
+    def views(self) -> torch.Tensor:
+        """What renders each view (``svr.nmr.views.render_views``): ``cameras`` when the batch has
+        them, else ``view_ids``."""
+        return self.cameras if self.cameras is not None else self.view_ids
 
     def to(self, device) -> "SVRBatch":
         return SVRBatch(*(t.to(device) for t in (self.images, self.view_ids, self.voxels, self.category,
-                                                  self.object_index)))
+                                                  self.object_index)),
+                        cameras=None if self.cameras is None else self.cameras.to(device))
 
     def __len__(self) -> int:
         return self.images.shape[0]
 
 
 def collate_batch(items: list[dict]) -> SVRBatch:
-    """Stacks per-sample dicts with keys images, view_ids, voxels, category, object_index."""
+    """Stacks per-sample dicts with keys images, view_ids, voxels, category, object_index, and
+    cameras where any item has them (an item without: its NMR views at the NMR elevation)."""
+    view_ids = torch.stack([torch.as_tensor(i["view_ids"]) for i in items]).long()
+    cameras = None
+    if any("cameras" in i for i in items):
+        nmr = torch.stack([view_ids.float(), torch.full(view_ids.shape, renderer.NMR_ELEVATION_DEG)], dim=-1)
+        cameras = torch.stack([torch.as_tensor(i["cameras"], dtype=torch.float32) if "cameras" in i else nmr[k]
+                               for k, i in enumerate(items)])
     return SVRBatch(
         images=torch.stack([torch.as_tensor(i["images"]) for i in items]).float(),
-        view_ids=torch.stack([torch.as_tensor(i["view_ids"]) for i in items]).long(),
+        view_ids=view_ids,
         voxels=torch.stack([torch.as_tensor(i["voxels"]) for i in items]).bool(),
         category=torch.as_tensor([int(i["category"]) for i in items], dtype=torch.long),
         object_index=torch.as_tensor([int(i["object_index"]) for i in items], dtype=torch.long),
+        cameras=cameras,
     )
 
 

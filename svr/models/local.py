@@ -14,9 +14,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-import renderer
-
 from sdfcommon.tooling.checks import check_int, check_int_sequence, check_shape
+from svr.nmr.views import view_cameras
 
 
 class PixelAlignedHead(nn.Module):
@@ -83,7 +82,8 @@ class PixelAlignedHead(nn.Module):
         Args:
             volume: (B, C, s, s, s) the decoder's last feature grid.
             maps: the image maps, (B, C_l, H_l, W_l) each, channels as ``image_channels``.
-            views: (B,) NMR view indices of the input images (fractional allowed).
+            views: (B,) NMR view indices of the input images (fractional allowed), or (B, 2) rows of
+                (view, elevation in degrees) (``svr.nmr.views.view_cameras``).
             points: (S, S, S, 3) world positions of the head's samples (renderer.SDFGrid layout),
                 S = s or 2s.
         Returns:
@@ -97,9 +97,10 @@ class PixelAlignedHead(nn.Module):
         check_shape(volume, "volume", f"{b}, {self.volume_channels}, s, s, s")
         if len(maps) != len(self.image_channels):
             raise ValueError(f"maps: expected {len(self.image_channels)} image maps, got {len(maps)}")
-        views = torch.as_tensor(views, device=volume.device).reshape(-1)
-        if views.numel() != b:
-            raise ValueError(f"views must hold one NMR view index per image ({b}), got {views.numel()}")
+        views = torch.as_tensor(views, device=volume.device)
+        views = views.reshape(-1, 2) if views.ndim == 2 else views.reshape(-1)
+        if views.shape[0] != b:
+            raise ValueError(f"views must hold one NMR view index per image ({b}), got {views.shape[0]}")
         side = points.shape[0]
         f = self.head_stride
         if f * s != side:
@@ -107,7 +108,7 @@ class PixelAlignedHead(nn.Module):
         # (s^3, f^3, 3): the head's samples grouped by the cell they fall in.
         sub = points.reshape(s, f, s, f, s, f, 3).permute(0, 2, 4, 1, 3, 5, 6).reshape(s ** 3, f ** 3, 3)
         centres = sub.mean(1)
-        cams = renderer.Cameras.nmr(views.detach().cpu(), image_size=self.image_size).to(volume.device, volume.dtype)
+        cams = view_cameras(views, self.image_size).to(volume.device, volume.dtype)
 
         def grid_of(pts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
             pix, depth = cams.project(pts)  # (B, P, 2), (B, P)

@@ -164,7 +164,7 @@ class SVRLightningModule(pl.LightningModule):
         where an image term has weight) and, where its weight is not 0, its voxels."""
         img = None
         if self.loss_weights.renders(self.scene.wants("shading")):
-            img = image_loss(sdf, self.net.half_side, batch.images, batch.view_ids, self.scene, self.render_size,
+            img = image_loss(sdf, self.net.half_side, batch.images, batch.views, self.scene, self.render_size,
                              self.loss_weights.silhouette_kind, self.trace_settings, self.backend)
             if self.capture_visuals:
                 self.visuals = {
@@ -191,7 +191,7 @@ class SVRLightningModule(pl.LightningModule):
 
     def training_step(self, batch: SVRBatch, batch_idx: int) -> torch.Tensor:
         self._skip_this_step = False
-        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.view_ids[:, 0])
+        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.views[:, 0])
         sdf = refined if refined is not None else coarse
         terms, why = None, None
         if not bool(torch.isfinite(sdf.detach()).all()):
@@ -282,7 +282,7 @@ class SVRLightningModule(pl.LightningModule):
     def validation_step(self, batch: SVRBatch, batch_idx: int) -> None:
         """Fast direct IoU (``svr.nmr.metrics.iou_direct``) of the stage's output and of the coarse SDF,
         one prediction per batch element from its first view."""
-        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.view_ids[:, 0])
+        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.views[:, 0])
         hs = self.net.half_side
         iou_c = iou_direct(coarse, batch.voxels, -hs, hs).to(self.device)
         iou = iou_direct(refined, batch.voxels, -hs, hs).to(self.device) if refined is not None else iou_c

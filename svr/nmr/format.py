@@ -151,6 +151,48 @@ def open_prepared(path: PathLike, kind: str, num_objects: Optional[int] = None) 
     return np.load(path, mmap_mode="r")
 
 
+def extra_view_files(root: PathLike, category_id: str, split: str) -> tuple[Path, Path]:
+    """The optional extra views of a category and split (not part of NMR ShapeNet: the procedural
+    data and the mesh builder write them on request): ``{cid}_{split}_extra_images.npy``, uint8
+    (N, K, 4, 64, 64) as the 24 views, and ``{cid}_{split}_extra_cameras.npy``, float32 (N, K, 2):
+    each view's azimuth and elevation in degrees (the NMR convention: the eye at
+    ``(d cos e sin a, d sin e, -d cos e cos a)``, view k of the 24 at azimuth ``-15 k`` and
+    elevation 30), at the NMR distance and field of view."""
+    check_split(split)
+    return (Path(root) / f"{category_id}_{split}_extra_images.npy",
+            Path(root) / f"{category_id}_{split}_extra_cameras.npy")
+
+
+def open_extra_views(root: PathLike, category_id: str, split: str,
+                     num_objects: int) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """The extra views of a category and split (``extra_view_files``), memory-mapped, or None when
+    it has none.
+
+    Raises:
+        ValueError naming the file: one of the pair missing, or a shape, dtype or object count that
+        does not match.
+    """
+    images_path, cameras_path = extra_view_files(root, category_id, split)
+    if not images_path.exists() and not cameras_path.exists():
+        return None
+    for path in (images_path, cameras_path):
+        if not path.is_file():
+            raise ValueError(f"{path} is missing while its pair is present: extra views need both files")
+    try:
+        images = np.load(images_path, mmap_mode="r")
+        cameras = np.load(cameras_path, mmap_mode="r")
+    except (ValueError, OSError) as err:
+        raise ValueError(f"{images_path.parent}: unreadable extra views of {category_id} {split} ({err})") from None
+    if images.dtype != np.uint8 or images.ndim != 5 or images.shape[0] != num_objects \
+            or tuple(images.shape[2:]) != IMAGE_SHAPE[1:]:
+        raise ValueError(f"{images_path} must be uint8 ({num_objects}, K, 4, 64, 64), got {images.dtype} "
+                         f"{tuple(images.shape)}")
+    if cameras.dtype != np.float32 or tuple(cameras.shape) != (num_objects, images.shape[1], 2):
+        raise ValueError(f"{cameras_path} must be float32 ({num_objects}, {images.shape[1]}, 2), got "
+                         f"{cameras.dtype} {tuple(cameras.shape)}")
+    return images, cameras
+
+
 def read_npz(path: PathLike, kind: str) -> np.ndarray:
     """The whole array of one NMR npz file, decompressed into memory: uint8 images, or bool voxels.
 
@@ -342,7 +384,7 @@ def check_view_ids(views: Optional[Sequence[int]], name: str = "views", allow_em
 
 
 __all__ = [
-    "check_view_ids",
+    "check_view_ids", "extra_view_files", "open_extra_views",
     "NMR_CATEGORIES", "NMR_CATEGORY_IDS", "SPLITS", "check_split", "NUM_VIEWS", "IMAGE_SHAPE", "VOXEL_SHAPE", "nmr_file", "read_npz_header",
     "check_npz", "read_npz", "open_prepared", "prepare_nmr", "read_metadata", "is_nmr_shapenet", "resolve_categories", "images_to_float",
 ]

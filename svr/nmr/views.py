@@ -22,6 +22,28 @@ PREVIEW_SCENE = renderer.Scene(effects=("shading",), lights=(), camera_light=0.7
                                ambient=0.25, albedo=(0.8, 0.8, 0.8), background=1.0)
 
 
+def view_cameras(views: torch.Tensor, image_size: int = 64, dtype: torch.dtype = torch.float32,
+                 device=None) -> renderer.Cameras:
+    """The cameras of N views given as NMR view coordinates.
+
+    Args:
+        views: (N,) view indices (azimuth ``-15 * view`` degrees, fractional allowed) at the NMR
+            elevation (30 degrees), or (N, 2) rows of (view, elevation in degrees): views the
+            dataset's 24 do not hold, as the extra training views (``svr.data.datasets``) have.
+    Returns:
+        ``renderer.Cameras.nmr`` of those views (NMR distance and field of view).
+    """
+    v = torch.as_tensor(views).detach().cpu()
+    if v.ndim == 2 and v.shape[1] == 2:
+        cams = renderer.Cameras.nmr(v[:, 0], image_size=image_size, dtype=dtype, elevation_deg=v[:, 1])
+    elif v.ndim == 1:
+        cams = renderer.Cameras.nmr(v, image_size=image_size, dtype=dtype)
+    else:
+        raise ValueError(f"views must be (N,) NMR view indices or (N, 2) rows of (view, elevation), got shape "
+                         f"{tuple(v.shape)}")
+    return cams.to(device) if device is not None else cams
+
+
 def render_views(
     sdf: torch.Tensor,
     half_side: float,
@@ -35,7 +57,8 @@ def render_views(
 
     Args:
         sdf: (B, N, N, N) SDF over ``[-half_side, half_side]^3`` (world units, NMR ShapeNet frame).
-        view_ids: (B, V) NMR view indices (``renderer.Cameras.nmr``).
+        view_ids: (B, V) NMR view indices (``renderer.Cameras.nmr``), or (B, V, 2) rows of (view,
+            elevation in degrees) (``view_cameras``).
         scene: renderer.Scene (its effects decide which passes run).
         image_size: render side H = W.
     Returns:
@@ -43,12 +66,11 @@ def render_views(
         (None unless the scene shades).
     """
     check_grid(sdf)
-    check_shape(view_ids, "view_ids", f"{sdf.shape[0]}, V")
+    check_shape(view_ids, "view_ids", f"{sdf.shape[0]}, V" if view_ids.ndim < 3 else f"{sdf.shape[0]}, V, 2")
     check_int(image_size, "image_size", minimum=1)
-    b, v = view_ids.shape
+    b, v = view_ids.shape[:2]
     grid = renderer.SDFGrid(sdf, -float(half_side), float(half_side))
-    cams = renderer.Cameras.nmr(view_ids.reshape(-1).cpu(), image_size=image_size, dtype=sdf.dtype,
-                                device=sdf.device)
+    cams = view_cameras(view_ids.reshape(b * v, *view_ids.shape[2:]), image_size, sdf.dtype, sdf.device)
     out = renderer.render(grid, cams, scene, trace_settings, backend)
     sil = out.silhouette.reshape(b, v, image_size, image_size) if out.silhouette is not None else None
     colours = None
@@ -85,4 +107,4 @@ def render_previews(grid: renderer.SDFGrid, views: Sequence[int] | torch.Tensor 
     return colours.permute(0, 1, 3, 4, 2).float().clamp(0, 1).cpu()
 
 
-__all__ = ["render_views", "render_previews", "PREVIEW_SCENE", "PREVIEW_VIEWS"]
+__all__ = ["view_cameras", "render_views", "render_previews", "PREVIEW_SCENE", "PREVIEW_VIEWS"]

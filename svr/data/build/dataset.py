@@ -19,6 +19,7 @@ import logging
 import re
 import shutil
 import signal
+import zlib
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +40,7 @@ from svr.data.build.rendering import render_mesh
 from svr.data.build.settings import BuildSettings
 from svr.data.build.voxels import VoxelResult, face_normals, solid_voxels
 from svr.data.procedural.appearance import NMR_LIGHTING
+from svr.data.procedural.generator import extra_cameras
 from svr.nmr.format import SPLITS
 from svr.nmr.voxels import voxels_to_sdf
 
@@ -56,7 +58,8 @@ MANIFEST_COLUMNS = ("category_id", "object_id", "split", "index", "source", "tri
 # temporaries of atomic writes a kill left): anything else in ``out`` is another folder's, and the
 # build refuses to mix its files into it.
 _BUILD_FILE = re.compile(r"^(metadata\.json|manifest\.csv|\.build|\.hydra|[^/]+\.log|\..+\.tmp|"
-                         r"[A-Za-z0-9][A-Za-z0-9.+-]*_(train|val|test)_(images|voxels|sdf)\.np[yz])$")
+                         r"[A-Za-z0-9][A-Za-z0-9.+-]*_(train|val|test)_(images|voxels|sdf|extra_images|extra_cameras)"
+                         r"\.np[yz])$")
 
 log = logging.getLogger(__name__)
 
@@ -67,13 +70,16 @@ class ObjectResult:
 
     Attributes:
         images: (V, 4, H, W) uint8. voxels: (R, R, R) bool, NMR frame. sdf: (N, N, N) float32 in
-            renderer.SDFGrid's layout over [-0.5, 0.5]^3, or None.
+            renderer.SDFGrid's layout over [-0.5, 0.5]^3, or None. extra_images (K, 4, H, W) uint8
+            and extra_cameras (K, 2) float32: the extra views (``extra_views``), or None.
     """
 
     row: dict
     images: Optional[np.ndarray] = None
     voxels: Optional[np.ndarray] = None
     sdf: Optional[np.ndarray] = None
+    extra_images: Optional[np.ndarray] = None
+    extra_cameras: Optional[np.ndarray] = None
 
 
 @dataclass(frozen=True)
@@ -108,6 +114,20 @@ def build_mesh(mesh: LoadedMesh, settings: BuildSettings) -> tuple[MeshStatistic
     Raises:
         MeshError when no camera sees the mesh.
     """
+    stats, images, vox, sdf, _ = _build_mesh(mesh, settings)
+    return stats, images, vox, sdf
+
+
+def object_extra_cameras(obj: MeshObject, settings: BuildSettings) -> np.ndarray:
+    """(K, 2) float32 (azimuth, elevation) of an object's extra views, drawn from the build's seed and
+    the object's category and id (``svr.data.procedural.generator.extra_cameras``' distribution)."""
+    key = zlib.crc32(f"{obj.category_id}/{obj.object_id}".encode())
+    return extra_cameras([settings.seed, key], settings.extra_views)
+
+
+def _build_mesh(mesh: LoadedMesh, settings: BuildSettings, cameras: Optional[np.ndarray] = None
+                ) -> tuple[MeshStatistics, np.ndarray, VoxelResult, Optional[np.ndarray], Optional[np.ndarray]]:
+    """``build_mesh``, and the renders from ``cameras`` ((K, 2) azimuth, elevation; None: none)."""
     stats, oriented = analyse_mesh(mesh.vertices, mesh.faces)
     caster = EmbreeCaster(mesh.vertices, mesh.faces)
     normals = face_normals(mesh.vertices, mesh.faces)
@@ -115,6 +135,10 @@ def build_mesh(mesh: LoadedMesh, settings: BuildSettings) -> tuple[MeshStatistic
                          settings.distance, settings.elevation, NMR_LIGHTING)
     if not images[:, 3].any():
         raise MeshError("the mesh is invisible from every camera")
+    extra = None
+    if cameras is not None and len(cameras):
+        extra = render_mesh(mesh, caster, normals, settings.image_size, settings.supersample, len(cameras),
+                            settings.distance, settings.elevation, NMR_LIGHTING, cameras=cameras)
     faces = oriented if settings.orient else mesh.faces
     # The votes need the faces' orientation; the BVH does not (the same triangles either way).
     vote_normals = face_normals(mesh.vertices, faces) if settings.orient else normals
@@ -124,7 +148,7 @@ def build_mesh(mesh: LoadedMesh, settings: BuildSettings) -> tuple[MeshStatistic
         fine = solid_voxels(caster, mesh.vertices, faces, vote_normals, settings.sdf_resolution,
                             settings.ray_directions)
         sdf = voxels_to_sdf(fine.voxels, pad=0)[0].astype(np.float32)
-    return stats, images, vox, sdf
+    return stats, images, vox, sdf, extra
 
 
 def build_object(obj: MeshObject, settings: BuildSettings, source: str) -> ObjectResult:
@@ -135,15 +159,16 @@ def build_object(obj: MeshObject, settings: BuildSettings, source: str) -> Objec
         obj: the mesh. settings: the build's settings. source: its path as the manifest shows it.
     """
     row = {"category_id": obj.category_id, "object_id": obj.object_id, "split": obj.split, "source": source}
+    cameras = object_extra_cameras(obj, settings) if settings.extra_views else None
     try:
-        stats, images, vox, sdf = build_mesh(load_mesh(obj.path), settings)
+        stats, images, vox, sdf, extra = _build_mesh(load_mesh(obj.path), settings, cameras)
     except Exception as err:  # noqa: BLE001 - any failure of one mesh is that mesh's skipped row
         row.update(status="skipped", reason=_one_line(err))
         return ObjectResult(row)
     row.update(triangles=stats.triangles, watertight=stats.watertight, components=stats.components,
                inconsistent_edges=round(stats.inconsistent_edges, 6), leak_score=round(vox.leak_score, 6),
                status="ok", reason="")
-    return ObjectResult(row, images, vox.voxels, sdf)
+    return ObjectResult(row, images, vox.voxels, sdf, extra, cameras)
 
 
 def _object_files(work: Path, obj: MeshObject) -> tuple[Path, Path]:
@@ -162,6 +187,8 @@ def _build_and_store(job: tuple[MeshObject, str], settings: BuildSettings, work:
         arrays = {"images": result.images, "voxels": result.voxels}
         if result.sdf is not None:
             arrays["sdf"] = result.sdf
+        if result.extra_images is not None:
+            arrays["extra_images"], arrays["extra_cameras"] = result.extra_images, result.extra_cameras
         atomic_write(arrays_file, lambda f: np.savez(f, **arrays))
     write_json(row_file, result.row)
     return result.row
@@ -212,7 +239,7 @@ def _check_out(out: Path, key: str, overwrite: bool) -> bool:
             raise ValueError(f"out: {out} holds another build (other meshes or settings); choose another "
                              f"folder or set overwrite=true to replace it")
         meta_file.unlink()
-        for kind in ("images", "voxels", "sdf"):  # the old build's files, whatever its categories
+        for kind in ("images", "voxels", "sdf", "extra_images", "extra_cameras"):  # the old build's, any categories
             for old in out.glob(f"*_*_{kind}.np[yz]"):
                 old.unlink()
     elif any(out.glob("*_*_*.np[yz]")) and not (out / WORK_DIR).is_dir():
@@ -232,9 +259,10 @@ class _PackJob:
     work: Path
 
 
-def _pack_files(job: _PackJob, kinds: tuple) -> None:
-    """Writes ``{cid}_{split}_{kind}.npy`` (memory-mappable) then ``.npz`` for each kind."""
-    for kind, item, dtype in kinds:
+def _pack_files(job: _PackJob, kinds: tuple, extra_kinds: tuple = ()) -> None:
+    """Writes ``{cid}_{split}_{kind}.npy`` (memory-mappable) then ``.npz`` for each kind, and for the
+    train split the extra views' ``.npy`` files of ``extra_kinds`` (``svr.nmr.format.extra_view_files``)."""
+    for kind, item, dtype in kinds + (extra_kinds if job.split == "train" else ()):
         npy = job.out / f"{job.category_id}_{job.split}_{kind}.npy"
         with atomic_path(npy) as tmp:
             arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=(len(job.objects), *item))
@@ -243,7 +271,8 @@ def _pack_files(job: _PackJob, kinds: tuple) -> None:
                     arr[i] = z[kind]
             arr.flush()
             del arr
-        write_npz(job.out / f"{job.category_id}_{job.split}_{kind}.npz", arr_0=np.load(npy, mmap_mode="r"))
+        if not kind.startswith("extra_"):
+            write_npz(job.out / f"{job.category_id}_{job.split}_{kind}.npz", arr_0=np.load(npy, mmap_mode="r"))
 
 
 def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str, str]], placed: list[MeshObject],
@@ -261,6 +290,8 @@ def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str,
     if settings.sdf_resolution:
         n = settings.sdf_resolution
         kinds.append(("sdf", (n, n, n), np.float32))
+    k = settings.extra_views
+    extra_kinds = (("extra_images", (k, 4, s, s), np.uint8), ("extra_cameras", (k, 2), np.float32)) if k else ()
     manifest, sizes, jobs = [], {}, []
     for cid, _ in pairs:
         sizes[cid] = {}
@@ -278,7 +309,8 @@ def _pack(out: Path, work: Path, settings: BuildSettings, pairs: list[tuple[str,
     jobs.sort(key=lambda j: -len(j.objects))  # the largest first: the last to finish is a small one
     if sum(len(j.objects) for j in jobs) < PARALLEL_PACK_OBJECTS:
         workers = 0  # starting processes would cost more than it saves
-    for _ in map_unordered(_pack_files, jobs, min(workers, len(jobs)), (tuple(kinds),), initializer=_worker_init):
+    for _ in map_unordered(_pack_files, jobs, min(workers, len(jobs)), (tuple(kinds), extra_kinds),
+                           initializer=_worker_init):
         pass
     write_csv(out / MANIFEST_FILE, manifest, MANIFEST_COLUMNS)
     meta = {

@@ -9,6 +9,7 @@ are averaged with a white background, and alpha is the fraction of samples that 
 from __future__ import annotations
 
 import functools
+from typing import Optional
 
 import numpy as np
 import torch
@@ -27,6 +28,17 @@ def nmr_sample_rays(image_size: int, supersample: int, views: int, distance: flo
     ids = [k * renderer.NMR_NUM_VIEWS / views for k in range(views)]
     cams = renderer.Cameras.nmr(ids, image_size=image_size * supersample, dtype=torch.float64,
                                 distance=distance, elevation_deg=elevation)
+    _, d = cams.rays()
+    return cams.eye.numpy().astype(np.float32), d.numpy().astype(np.float32)
+
+
+def camera_sample_rays(image_size: int, supersample: int, cameras: np.ndarray,
+                       distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """As ``nmr_sample_rays`` for K cameras given as (K, 2) rows of (azimuth, elevation) in degrees
+    (``svr.nmr.format.extra_view_files``' convention)."""
+    cameras = np.asarray(cameras, dtype=np.float64).reshape(-1, 2)
+    cams = renderer.Cameras.nmr(torch.from_numpy(-cameras[:, 0] / 15.0), image_size=image_size * supersample,
+                                dtype=torch.float64, distance=distance, elevation_deg=torch.from_numpy(cameras[:, 1]))
     _, d = cams.rays()
     return cams.eye.numpy().astype(np.float32), d.numpy().astype(np.float32)
 
@@ -50,17 +62,23 @@ def _albedo(mesh: LoadedMesh, face: np.ndarray, u: np.ndarray, v: np.ndarray) ->
 
 
 def render_mesh(mesh: LoadedMesh, caster: RayCaster, normals: np.ndarray, image_size: int, supersample: int,
-                views: int, distance: float, elevation: float, lighting: Lighting = NMR_LIGHTING) -> np.ndarray:
+                views: int, distance: float, elevation: float, lighting: Lighting = NMR_LIGHTING,
+                cameras: Optional[np.ndarray] = None) -> np.ndarray:
     """The views of a mesh (see the module docstring).
 
     Args:
         mesh: a normalised mesh; caster: its ray caster; normals: (F, 3) its face normals.
         image_size: H = W. supersample: S. views, distance, elevation: the cameras (NMR: 24 views,
             distance 2.732, elevation 30 degrees; configs/build.yaml).
+        cameras: instead of ``views`` and ``elevation``, (K, 2) rows of (azimuth, elevation) in
+            degrees (``camera_sample_rays``).
     Returns:
         (V, 4, H, W) uint8 RGBA: RGB composited on white, alpha = coverage.
     """
-    eyes, dirs = nmr_sample_rays(image_size, supersample, views, distance, elevation)
+    if cameras is None:
+        eyes, dirs = nmr_sample_rays(image_size, supersample, views, distance, elevation)
+    else:
+        eyes, dirs = camera_sample_rays(image_size, supersample, cameras, distance)
     v, hs, ws = dirs.shape[:3]
     d = dirs.reshape(-1, 3)
     hits = caster.first_hits(np.repeat(eyes, hs * ws, axis=0), d)
@@ -88,4 +106,4 @@ def render_mesh(mesh: LoadedMesh, caster: RayCaster, normals: np.ndarray, image_
     return np.clip(np.round(img * 255.0), 0, 255).astype(np.uint8)
 
 
-__all__ = ["nmr_sample_rays", "render_mesh"]
+__all__ = ["nmr_sample_rays", "camera_sample_rays", "render_mesh"]

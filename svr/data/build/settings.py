@@ -16,7 +16,7 @@ from svr.data.build.voxels import DIRECTION_SETS
 # afresh); the others (workers, progress, ...) change only how it is made.
 DATA_FIELDS = ("input", "layout", "categories", "split_lists", "split_ratios", "seed", "views", "elevation",
                "distance", "image_size", "supersample", "voxel_resolution", "ray_directions", "orient",
-               "sdf_resolution")
+               "sdf_resolution", "extra_views")
 
 
 @dataclass(frozen=True)
@@ -36,6 +36,8 @@ class BuildSettings:
         voxel_resolution: voxel grid side (NMR: 32). ray_directions: 3, 7 or 13 line directions
             of the voxel votes. orient: orient faces consistently before the votes.
         sdf_resolution: side of the optional signed distance grids (0: none).
+        extra_views: K extra views of each training object (any azimuth, elevation 10 to 50
+            degrees; ``svr.nmr.format.extra_view_files``), 0: none.
         workers: processes (None: one per core; 0: this process alone).
         overwrite: replace a finished build in ``out`` made with other settings.
         keep_work: keep the per-object results (``out/.build``) after packing. progress: a bar.
@@ -57,6 +59,7 @@ class BuildSettings:
     ray_directions: int
     orient: bool
     sdf_resolution: int
+    extra_views: int
     workers: Optional[int]
     overwrite: bool
     keep_work: bool
@@ -86,13 +89,17 @@ class BuildSettings:
         check_int(self.sdf_resolution, "sdf_resolution", minimum=0)
         if self.sdf_resolution == 1:
             raise ValueError("sdf_resolution must be 0 (no grids) or at least 2, got 1")
+        check_int(self.extra_views, "extra_views", minimum=0)
         if self.workers is not None:
             check_int(self.workers, "workers", minimum=0)
 
     def data_record(self) -> dict:
         """The settings that change the data, as plain values (the build's plan)."""
         record = dataclasses.asdict(self)
-        return {k: record[k] for k in DATA_FIELDS}
+        out = {k: record[k] for k in DATA_FIELDS}
+        if not self.extra_views:
+            del out["extra_views"]  # a build without them keeps the plan it had before the setting existed
+        return out
 
 
 __all__ = ["BuildSettings", "DATA_FIELDS"]

@@ -35,7 +35,7 @@ from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NM
                                             ProceduralCategory, make_shape, procedural_category, style_of)
 from svr.data.procedural.csg import CSGShape, surface_normals_and_parts, trace_rays
 from svr.data.types import ShadingModel
-from svr.nmr.format import IMAGE_SHAPE, NUM_VIEWS, SPLITS, VOXEL_SHAPE, nmr_file
+from svr.nmr.format import IMAGE_SHAPE, NUM_VIEWS, SPLITS, VOXEL_SHAPE, extra_view_files, nmr_file
 from svr.nmr.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxelize_sdf_protocol
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
@@ -59,6 +59,30 @@ def _nmr_rays(image_size: int, num_views: int = NUM_VIEWS) -> tuple[np.ndarray, 
     cams = renderer.Cameras.nmr(list(range(num_views)), image_size=image_size, dtype=torch.float64)
     _, d = cams.rays()
     return cams.eye.numpy().copy(), d.numpy().copy()
+
+
+def _camera_rays(image_size: int, cameras: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Eyes (K, 3) and unit ray directions (K, H, W, 3), float64, of K cameras at the NMR distance
+    and field of view, given as rows of (azimuth, elevation) in degrees (NMR's convention)."""
+    cameras = np.asarray(cameras, dtype=np.float64).reshape(-1, 2)
+    cams = renderer.Cameras.nmr(torch.from_numpy(-cameras[:, 0] / 15.0), image_size=image_size, dtype=torch.float64,
+                                elevation_deg=torch.from_numpy(cameras[:, 1]))
+    _, d = cams.rays()
+    return cams.eye.numpy().copy(), d.numpy().copy()
+
+
+# Extra training views (``ProceduralSettings.extra_views``): any azimuth, elevations in this range.
+EXTRA_ELEVATION_DEG = (10.0, 50.0)
+
+
+def extra_cameras(seed: list[int], count: int) -> np.ndarray:
+    """(count, 2) float32 (azimuth, elevation) in degrees of an object's extra views, drawn from
+    its seed (independent of its shape's and colours' draws): azimuth uniform in [0, 360),
+    elevation uniform in ``EXTRA_ELEVATION_DEG``."""
+    rng = np.random.default_rng([*seed, 0xE7])
+    az = rng.uniform(0.0, 360.0, count)
+    el = rng.uniform(*EXTRA_ELEVATION_DEG, count)
+    return np.stack([az, el], axis=1).astype(np.float32)
 
 
 @numba.njit(cache=True)
@@ -87,7 +111,7 @@ def _interior_pixels(hit, t, normals, depth_k, cos_min):
 
 def render_shape(shape: CSGShape, colours: Optional[np.ndarray] = None, lighting: Lighting = NMR_LIGHTING,
                  supersample: int = 3, image_size: int = IMAGE_SIZE, num_views: int = NUM_VIEWS,
-                 adaptive: bool = True) -> np.ndarray:
+                 adaptive: bool = True, cameras: Optional[np.ndarray] = None) -> np.ndarray:
     """The NMR views of an analytic shape, anti-aliased.
 
     Adaptive supersampling: every pixel's centre ray is traced first. A pixel whose centre ray
@@ -104,6 +128,8 @@ def render_shape(shape: CSGShape, colours: Optional[np.ndarray] = None, lighting
         lighting: the light (``NMR_LIGHTING``: NMR's recipe); the background is white.
         supersample: S, rays per pixel side.
         adaptive: False supersamples every pixel (the reference the adaptive rule is tested against).
+        cameras: instead of the NMR views, (K, 2) rows of (azimuth, elevation) in degrees
+            (``svr.nmr.format.extra_view_files``' convention) at the NMR distance and field of view.
     Returns:
         (V, 4, H, W) uint8 RGBA: RGB composited on the background, alpha = coverage.
     """
@@ -112,8 +138,12 @@ def render_shape(shape: CSGShape, colours: Optional[np.ndarray] = None, lighting
         colours = np.tile(NEUTRAL_COLOUR, (len(shape.parts), 1))
     colours = np.asarray(colours, dtype=np.float64)
     check_shape(colours, "colours", f"{len(shape.parts)}, 3")
-    eyes, dirs = _nmr_rays(image_size, num_views)
-    _, sub_dirs = _nmr_rays(image_size * s, num_views)
+    if cameras is None:
+        eyes, dirs = _nmr_rays(image_size, num_views)
+        _, sub_dirs = _nmr_rays(image_size * s, num_views)
+    else:
+        eyes, dirs = _camera_rays(image_size, cameras)
+        _, sub_dirs = _camera_rays(image_size * s, cameras)
     v, h, w = dirs.shape[:3]
     pixel_angle = 2.0 * math.tan(math.radians(15.0)) / image_size
     hit_threshold = 0.25 * pixel_angle / s
@@ -243,6 +273,9 @@ class ProceduralSettings:
             default: the benchmark's own voxelisation of the exact shape's mesh, so the exact shape
             on the model's grid scores about 1 under ``svr.nmr.metrics.iou_protocol``) or "centre"
             (SPEC 5's definition, centre inside; there an exact prediction scores about 0.6).
+        extra_views: K extra views of each training object besides the 24 (``extra_cameras``: any
+            azimuth, elevation 10 to 50 degrees), in ``svr.nmr.format.extra_view_files``; 0 (the
+            default) makes none and leaves the cache key as it was without the field.
     """
 
     categories: tuple[str, ...] = ()
@@ -252,6 +285,7 @@ class ProceduralSettings:
     seed: int = 0
     supersample: int = 3
     voxel_rule: str = "protocol"
+    extra_views: int = 0
 
     def __post_init__(self) -> None:
         if isinstance(self.categories, str):
@@ -269,6 +303,7 @@ class ProceduralSettings:
         check_int(self.seed, "seed")
         if self.voxel_rule not in VOXEL_RULES:
             raise ValueError(f"voxel_rule must be one of {VOXEL_RULES}, got {self.voxel_rule!r}")
+        check_int(self.extra_views, "extra_views", minimum=0)
 
     def sizes(self) -> dict[str, int]:
         return {split: getattr(self, split) for split in SPLITS}
@@ -280,7 +315,8 @@ class ProceduralSettings:
     def array_bytes(self) -> int:
         """Bytes of the dataset's uint8 images and bool voxels as arrays (the .npy files; the
         compressed .npz copies add a few per cent)."""
-        return self.num_objects() * (math.prod(IMAGE_SHAPE) + math.prod(VOXEL_SHAPE))
+        extra = self.train * len(self.categories) * self.extra_views * (math.prod(IMAGE_SHAPE[1:]) + 8)
+        return self.num_objects() * (math.prod(IMAGE_SHAPE) + math.prod(VOXEL_SHAPE)) + extra
 
     def category_pairs(self) -> list[tuple[str, str]]:
         """(id, name) per category, in the dataset's order."""
@@ -288,12 +324,14 @@ class ProceduralSettings:
 
     def key(self) -> str:
         """A short hash of the settings and the generator version (the cache folder's suffix)."""
-        blob = json.dumps({**dataclasses.asdict(self), "categories": list(self.categories),
-                           "version": GENERATOR_VERSION}, sort_keys=True)
+        blob = json.dumps({**self.to_json(), "version": GENERATOR_VERSION}, sort_keys=True)
         return hashlib.sha256(blob.encode()).hexdigest()[:12]
 
     def to_json(self) -> dict:
-        return {**dataclasses.asdict(self), "categories": list(self.categories)}
+        out = {**dataclasses.asdict(self), "categories": list(self.categories)}
+        if not self.extra_views:
+            del out["extra_views"]  # a dataset without them keeps its key and metadata
+        return out
 
 
 METADATA_FILE = "metadata.json"
@@ -312,7 +350,8 @@ def read_settings(root: Union[str, os.PathLike]) -> ProceduralSettings:
         meta = json.loads(path.read_text())
         s = meta["settings"]
         return ProceduralSettings(tuple(s["categories"]), int(s["train"]), int(s["val"]), int(s["test"]),
-                                  int(s["seed"]), int(s["supersample"]), str(s["voxel_rule"]))
+                                  int(s["seed"]), int(s["supersample"]), str(s["voxel_rule"]),
+                                  int(s.get("extra_views", 0)))
     except FileNotFoundError:
         raise ValueError(f"{path} is missing: {Path(root)} is not a generated procedural dataset") from None
     except (ValueError, KeyError, TypeError) as err:
@@ -356,17 +395,29 @@ class _Chunk:
         return f"{self.category_id}_{self.split}_{self.start:06d}.done"
 
 
-def _make_chunk(chunk: _Chunk, settings: ProceduralSettings) -> tuple[np.ndarray, np.ndarray]:
-    """Renders and voxelises one chunk: ((n, 24, 4, 64, 64) uint8, (n, 32, 32, 32) bool)."""
+def _extra_count(settings: ProceduralSettings, split: str) -> int:
+    return settings.extra_views if split == "train" else 0
+
+
+def _make_chunk(chunk: _Chunk, settings: ProceduralSettings) -> tuple[np.ndarray, ...]:
+    """Renders and voxelises one chunk: ((n, 24, 4, 64, 64) uint8, (n, 32, 32, 32) bool), then with
+    extra views ((n, K, 4, 64, 64) uint8, (n, K, 2) float32 cameras)."""
     n = chunk.stop - chunk.start
+    k_extra = _extra_count(settings, chunk.split)
     images = np.zeros((n, *IMAGE_SHAPE), dtype=np.uint8)
     voxels = np.zeros((n, *VOXEL_SHAPE), dtype=bool)
+    extra_images = np.zeros((n, k_extra, *IMAGE_SHAPE[1:]), dtype=np.uint8)
+    cameras = np.zeros((n, k_extra, 2), dtype=np.float32)
     for k, i in enumerate(range(chunk.start, chunk.stop)):
         seed = object_seed(settings.seed, chunk.category_id, chunk.split, i)
         shape = make_shape(chunk.name, seed)
-        images[k] = render_shape(shape, draw_colours(colour_rng(seed), shape.parts), NMR_LIGHTING, settings.supersample)
+        colours = draw_colours(colour_rng(seed), shape.parts)
+        images[k] = render_shape(shape, colours, NMR_LIGHTING, settings.supersample)
         voxels[k] = voxelize_shape(shape, rule=settings.voxel_rule)
-    return images, voxels
+        if k_extra:
+            cameras[k] = extra_cameras(seed, k_extra)
+            extra_images[k] = render_shape(shape, colours, NMR_LIGHTING, settings.supersample, cameras=cameras[k])
+    return (images, voxels, extra_images, cameras) if k_extra else (images, voxels)
 
 
 def _worker_init() -> None:
@@ -375,19 +426,25 @@ def _worker_init() -> None:
     torch.set_num_threads(1)
 
 
-def _open_arrays(folder: Path, settings: ProceduralSettings) -> dict[tuple[str, str], tuple[np.ndarray, np.ndarray]]:
-    """The (images, voxels) .npy memory maps of every category and split in a partial folder,
-    created on first use (their final names: they become the prepared arrays of ``prepare_nmr``)."""
+def _open_arrays(folder: Path, settings: ProceduralSettings) -> dict[tuple[str, str], tuple[np.ndarray, ...]]:
+    """The (images, voxels) .npy memory maps of every category and split in a partial folder, then
+    the extra views' (images, cameras) where the split has them, created on first use (their final
+    names: they become the prepared arrays of ``prepare_nmr``)."""
     arrays = {}
     for cid, _ in settings.category_pairs():
         for split in SPLITS:
             n = getattr(settings, split)
-            pair = []
-            for kind, item, dtype in (("images", IMAGE_SHAPE, np.uint8), ("voxels", VOXEL_SHAPE, np.bool_)):
-                path = nmr_file(folder, cid, split, kind, "npy")
+            k_extra = _extra_count(settings, split)
+            files = [(nmr_file(folder, cid, split, "images", "npy"), IMAGE_SHAPE, np.uint8),
+                     (nmr_file(folder, cid, split, "voxels", "npy"), VOXEL_SHAPE, np.bool_)]
+            if k_extra:
+                extra_images, extra_cams = extra_view_files(folder, cid, split)
+                files += [(extra_images, (k_extra, *IMAGE_SHAPE[1:]), np.uint8), (extra_cams, (k_extra, 2), np.float32)]
+            group = []
+            for path, item, dtype in files:
                 mode = "r+" if path.exists() else "w+"
-                pair.append(np.lib.format.open_memmap(path, mode=mode, dtype=dtype, shape=(n, *item)))
-            arrays[(cid, split)] = tuple(pair)
+                group.append(np.lib.format.open_memmap(path, mode=mode, dtype=dtype, shape=(n, *item)))
+            arrays[(cid, split)] = tuple(group)
     return arrays
 
 
@@ -409,7 +466,9 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
     world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``. The folder holds
     ``{cid}_{split}_images.npz`` and ``{cid}_{split}_voxels.npz`` (key ``arr_0``, as NMR ShapeNet), a
     ``metadata.json`` (categories, settings, lighting), and the memory-mapped ``.npy`` copies
-    that ``svr.nmr.format.prepare_nmr`` makes of real NMR data.
+    that ``svr.nmr.format.prepare_nmr`` makes of real NMR data. With ``settings.extra_views`` = K each training object also gets K views from
+    ``extra_cameras`` (any azimuth, elevation 10 to 50 degrees), rendered the same way, in the two
+    ``.npy`` files of ``svr.nmr.format.extra_view_files``.
 
     The work goes into ``.<name>.partial`` beside ``out_dir`` in chunks of ``CHUNK_OBJECTS``
     objects: each chunk is written into the memory-mapped ``.npy`` arrays, flushed, then marked
@@ -467,11 +526,10 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
         bar = tqdm(total=total, initial=total - sum(c.stop - c.start for c in todo), unit="obj",
                    desc=f"procedural dataset -> {out.name}", disable=not progress)
 
-        def store(chunk: _Chunk, result: tuple[np.ndarray, np.ndarray]) -> None:
-            images, voxels = arrays[(chunk.category_id, chunk.split)]
-            images[chunk.start:chunk.stop], voxels[chunk.start:chunk.stop] = result
-            images.flush()
-            voxels.flush()
+        def store(chunk: _Chunk, result: tuple[np.ndarray, ...]) -> None:
+            for array, part in zip(arrays[(chunk.category_id, chunk.split)], result, strict=True):
+                array[chunk.start:chunk.stop] = part
+                array.flush()
             (done_dir / chunk.marker).touch()
             bar.update(chunk.stop - chunk.start)
 
@@ -537,7 +595,7 @@ def load_shading(root: Union[str, os.PathLike]) -> Optional[ShadingModel]:
 __all__ = [
     "GENERATOR_VERSION", "ALL_CATEGORIES", "NMR_PROCEDURAL_CATEGORIES", "EXTRA_CATEGORIES",
     "ProceduralCategory", "ProceduralSettings", "make_shape", "style_of", "object_seed", "procedural_category",
-    "render_shape", "voxelize_shape", "sample_near_surface", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
+    "render_shape", "extra_cameras", "EXTRA_ELEVATION_DEG", "voxelize_shape", "sample_near_surface", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
     "procedural_dataset_dir", "load_shading", "read_settings", "is_procedural_dataset", "dataset_shape",
     "default_workers",
 ]
