@@ -1,6 +1,8 @@
 """Single-view reconstruction of photos whose camera nobody gives, run as ``python -m
 benchmarks.photo_inference --ckpt RUN/joint/checkpoints/best.ckpt [--preset demo] [--views 4]``
-(issue 43, point 5, at NMR's own views: the procedural data holds no others yet). Each test object is seen from ``--views`` random NMR views; each render becomes a photo: scaled by
+(issue 43, point 5). Each test object is seen from ``--views`` random NMR views, or with
+``--random-views`` from random cameras (any azimuth, elevation 10 to 50 degrees: rendered from its
+exact shape as the dataset's views were); each render becomes a photo: scaled by
 0.8 to 1.2 (from twice its size), placed up to 10% of the image off centre on a 240^2 white canvas, saved as a JPEG with no
 alpha. ``svr.infer``'s own steps then read it (plain background removed), estimate its camera with
 the checkpoint's head, frame it and reconstruct it (``svr.inference.reconstruction``). Beside it on
@@ -25,6 +27,7 @@ import torch
 from PIL import Image
 
 from benchmarks.common import atomic_write_text, bootstrap_means, machine_info, procedural_data
+from svr.data.procedural.generator import EXTRA_ELEVATION_DEG, render_dataset_object
 from svr.evaluation.baselines import retrieve_any_view
 from svr.inference.framing import frame_image, measure_framing
 from svr.inference.images import read_rgba, rgba_to_input
@@ -52,7 +55,22 @@ def make_photo(render: np.ndarray, rng: np.random.Generator) -> tuple[bytes, flo
     return buffer.getvalue(), scale
 
 
-def run(ckpt: str, preset: str, views: int, seed: int, work: Path) -> dict:
+def sample_test_views(root: Path, test, obj: int, views: int, random_views: bool,
+               rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """One test object's renders and their cameras as (view, elevation) rows: ``views`` distinct
+    NMR views from the dataset, or with ``random_views`` renders from cameras at any azimuth and an
+    elevation of 10 to 50 degrees (the view coordinate ``-azimuth / 15`` taken modulo 24)."""
+    if not random_views:
+        chosen = rng.choice(24, size=views, replace=False)
+        rows = np.stack([chosen.astype(np.float64), np.full(views, 30.0)], axis=1)
+        return test.images_uint8(obj, chosen.tolist()), rows
+    cams = np.stack([rng.uniform(0.0, 360.0, views), rng.uniform(*EXTRA_ELEVATION_DEG, views)], axis=1)
+    c, o = test.locate(obj)
+    renders = render_dataset_object(root, test.categories[c][0], "test", o, cams)
+    return renders, np.stack([(-cams[:, 0] / 15.0) % 24.0, cams[:, 1]], axis=1)
+
+
+def run(ckpt: str, preset: str, views: int, seed: int, work: Path, random_views: bool = False) -> dict:
     dm = procedural_data(preset)
     test, train = dm.dataset("test"), dm.dataset("train")
     model = load_model(ckpt, "cpu")
@@ -65,12 +83,12 @@ def run(ckpt: str, preset: str, views: int, seed: int, work: Path) -> dict:
     category, objects, view_error, right, query_alpha, seconds = [], [], [], [], [], 0.0
     for obj in range(len(test)):
         c, _ = test.locate(obj)
-        chosen = rng.choice(24, size=views, replace=False)
-        renders = test.images_uint8(obj, chosen.tolist())
+        renders, cams = sample_test_views(dm.root, test, obj, views, random_views, rng)
         gt = test.voxels(obj)[None]
-        for v, render in zip(chosen.tolist(), renders):
+        for k, (row, render) in enumerate(zip(cams, renders)):
+            v, true_cam = float(row[0]), torch.tensor(row[None], dtype=torch.float32)
             data, _ = make_photo(render, rng)
-            path = work / f"photo_{obj}_{v}.jpg"
+            path = work / f"photo_{obj}_{k}.jpg"
             path.write_bytes(data)
             started = time.perf_counter()
             rgba = read_rgba(path)
@@ -81,16 +99,16 @@ def run(ckpt: str, preset: str, views: int, seed: int, work: Path) -> dict:
             framed, _ = frame_image(rgba, str(path), model.image_size, true_framing)
             true_image = rgba_to_input(framed, str(path), model.image_size)
             grids = {"photo_estimated": pred,
-                     "photo_true": predict_sdf(model, true_image[None], views=[float(v)]).final,
+                     "photo_true": predict_sdf(model, true_image[None], views=true_cam).final,
                      "view_only": predict_sdf(model, true_image[None], views=[camera.view]).final,
-                     "framing_only": predict_sdf(model, image[None], views=[float(v)]).final,
+                     "framing_only": predict_sdf(model, image[None], views=true_cam).final,
                      "render_true": predict_sdf(model, torch.from_numpy(render[None]).float() / 255.0,
-                                                views=[float(v)]).final}
+                                                views=true_cam).final}
             for name, grid in grids.items():
                 rows[name].append(float(voxel_iou(voxels_protocol(grid.detach().float(), -hs, hs), gt)[0]))
             err = abs(((camera.view - v) * 15 + 180) % 360 - 180)
             view_error.append(err)
-            right.append(err == 0)
+            right.append(err < 7.5)  # the nearest NMR view
             category.append(c)
             objects.append(obj)
             query_alpha.append((image[3].numpy() * 255).round().astype(np.uint8))
@@ -103,7 +121,7 @@ def run(ckpt: str, preset: str, views: int, seed: int, work: Path) -> dict:
     result = {"ckpt": str(ckpt), "preset": preset, "views_per_object": views, "seed": seed, "photos": len(category),
               "azimuth_error_median_deg": float(np.median(view_error)),
               "azimuth_error_mean_deg": float(np.mean(view_error)), "views_right": float(np.mean(right)),
-              "flipped_180": float(np.mean(np.asarray(view_error) == 180)),
+              "flipped_180": float(np.mean(np.asarray(view_error) > 172.5)), "random_views": random_views,
               "photos_per_second": len(category) / seconds, "rows": {}}
     for name, values in rows.items():
         values = np.asarray(values)
@@ -124,18 +142,21 @@ LABELS = {"render_true": "the original render, true camera (the benchmark's prot
 
 def report(result: dict) -> str:
     r = result["rows"]
-    lines = [f"# Photos in, no camera given ({result['preset']} preset)", "",
+    random = result.get("random_views", False)
+    seen = "random cameras (azimuth any, elevation 10-50 degrees)" if random else "random NMR views"
+    lines = [f"# Photos in, no camera given ({result['preset']} preset{', random views' if random else ''})", "",
              f"`python -m benchmarks.photo_inference --ckpt {result['ckpt']} --preset {result['preset']} "
-             f"--views {result['views_per_object']} --seed {result['seed']}`: {result['photos']} photos "
-             f"(each test object from {result['views_per_object']} random NMR views; scale 0.8-1.2, up to 10% off "
-             f"centre, JPEG on white, no alpha).", "",
+             f"--views {result['views_per_object']} --seed {result['seed']}{' --random-views' if random else ''}`: "
+             f"{result['photos']} photos (each test object from {result['views_per_object']} {seen}; scale 0.8-1.2, "
+             f"up to 10% off centre, JPEG on white, no alpha).", "",
              "| row | mean IoU | 95% interval |", "|---|---|---|"]
     for name in ("render_true", "photo_true", "view_only", "framing_only", "photo_estimated", "retrieval_any_view"):
         lines.append(f"| {LABELS[name]} | {r[name]['mean']:.4f} | [{r[name]['lo']:.3f}, {r[name]['hi']:.3f}] |")
     gap = r["photo_true"]["mean"] - r["photo_estimated"]["mean"]
     lines += ["", f"- Estimated camera: azimuth error median {result['azimuth_error_median_deg']:.0f} degrees, mean "
-              f"{result['azimuth_error_mean_deg']:.1f}; view exactly right {result['views_right']:.1%}; "
-              f"turned by 180 degrees {result['flipped_180']:.1%}.",
+              f"{result['azimuth_error_mean_deg']:.1f}; nearest NMR view right {result['views_right']:.1%}; "
+              f"turned by 180 degrees {result['flipped_180']:.1%}"
+              f"{' (the head estimates the azimuth only; the elevation is taken as 30)' if random else ''}.",
               f"- The estimate costs {gap:+.4f} IoU against the true camera on the same photos (issue 43 "
               f"target: at most 0.03); against retrieval it gains "
               f"{r['photo_estimated']['mean'] - r['retrieval_any_view']['mean']:+.4f}.",
@@ -149,6 +170,8 @@ def main(argv: Optional[list[str]] = None) -> None:
     parser.add_argument("--ckpt", required=True, help="a checkpoint with a camera head (model=pixel)")
     parser.add_argument("--preset", default="demo", choices=("demo", "bench"))
     parser.add_argument("--views", type=int, default=4, help="random NMR views per test object")
+    parser.add_argument("--random-views", action="store_true",
+                        help="render each test object from random cameras (azimuth any, elevation 10-50) instead")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--work", type=Path, default=Path("outputs/photo_inference"), help="where the JPEGs go")
     parser.add_argument("--out", type=Path, default=None, help="markdown report (default docs/photo_inference_<preset>.md)")
@@ -156,8 +179,8 @@ def main(argv: Optional[list[str]] = None) -> None:
     if args.views < 1 or args.views > 24:
         parser.error(f"--views must be 1..24, got {args.views}")
     torch.set_grad_enabled(False)
-    result = run(args.ckpt, args.preset, args.views, args.seed, args.work)
-    out = args.out or ROOT / "docs" / f"photo_inference_{args.preset}.md"
+    result = run(args.ckpt, args.preset, args.views, args.seed, args.work, args.random_views)
+    out = args.out or ROOT / "docs" / f"photo_inference_{args.preset}{'_random' if args.random_views else ''}.md"
     atomic_write_text(out, report(result))
     atomic_write_text(out.with_suffix(".json"), json.dumps(result, indent=2) + "\n")
     print(report(result))

@@ -21,7 +21,7 @@ import torch
 from scipy import ndimage
 from torch.nn import functional as F
 
-import renderer
+from svr.nmr.views import view_cameras
 
 CARVES = ("none", "view", "view+mirror")
 
@@ -86,7 +86,7 @@ class Calibration:
     def cone(self, images: torch.Tensor, views: Optional[torch.Tensor], resolution: int,
              half_side: float) -> Optional[torch.Tensor]:
         """The field this calibration carves with (``silhouette_cone_sdf``) for ``images`` (B, 4, S,
-        S) RGBA taken from NMR views ``views`` (B,), on the N^3 grid over ``[-half_side,
+        S) RGBA taken from NMR views ``views`` (B,) (or (B, 2) rows of view and elevation), on the N^3 grid over ``[-half_side,
         half_side]^3``; None when it carves nothing, or without views (nothing can be carved)."""
         if self.carve == "none" or views is None:
             return None
@@ -124,10 +124,10 @@ def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.
 
 
 @functools.lru_cache(maxsize=64)
-def _view_lookup(view: int, size: int, resolution: int, half_side: float, flip_axis: Optional[int],
+def _view_lookup(view: tuple[float, ...], size: int, resolution: int, half_side: float, flip_axis: Optional[int],
                  device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where each sample of the N^3 grid (mirrored across ``flip_axis`` when not None) projects in
-    NMR view ``view``'s S x S image: ``grid_sample`` coordinates (1, 1, N^3, 2), the camera's
+    the S x S image of ``view`` (an NMR view index, or (view, elevation): ``view_cameras``): ``grid_sample`` coordinates (1, 1, N^3, 2), the camera's
     ``pixel_angle`` (1,) (a pixel's world size per unit of depth) and each sample's depth (N^3,).
     The same for every image from that view, so it is computed once: projecting the grid for each
     image was most of an evaluation's prediction time."""
@@ -137,7 +137,8 @@ def _view_lookup(view: int, size: int, resolution: int, half_side: float, flip_a
         flip = torch.ones(3, device=device)
         flip[flip_axis] = -1.0
         points = points * flip
-    cams = renderer.Cameras.nmr(torch.tensor([view]), image_size=size).to(device, torch.float32)
+    cams = view_cameras(torch.tensor([view] if len(view) == 2 else view, dtype=torch.float64), size)
+    cams = cams.to(device, torch.float32)
     pix, depth = cams.project(points)
     grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
     return grid, cams.pixel_angle, depth[0]
@@ -153,13 +154,15 @@ def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: in
 
     Args:
         alpha: (B, S, S) the input images' alpha.
-        views: (B,) their NMR view indices.
+        views: (B,) their NMR view indices, or (B, 2) rows of (view, elevation in degrees)
+            (``svr.nmr.views.view_cameras``).
     Returns:
         (B, N, N, N) float32 on ``alpha``'s device.
     """
     b, size = alpha.shape[0], alpha.shape[-1]
     dist = signed_pixel_distance(alpha, threshold)[:, None]  # (B, 1, S, S)
-    view_list = [int(v) for v in torch.as_tensor(views).detach().cpu().reshape(-1).tolist()]
+    v = torch.as_tensor(views).detach().cpu().double()
+    view_list = [tuple(row) for row in (v.reshape(-1, 2) if v.ndim == 2 else v.reshape(-1, 1)).tolist()]
     if len(view_list) != b:
         raise ValueError(f"views has {len(view_list)} entries for {b} images")
     out = torch.empty(b, resolution ** 3, dtype=torch.float32, device=alpha.device)

@@ -171,8 +171,8 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
         clip: intersect the shapes with the cube the objects are normalised into
             (``svr.nmr.voxels.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
             output of this module and ``svr.evaluate`` goes through it.
-        views: the images' NMR view indices (B,) (0..23, fractional allowed), or one for all: the
-            camera each image was taken from. Needed by a network that reads pixel-aligned image
+        views: the images' NMR view indices (B,) (0..23, fractional allowed), or one for all, or
+            (B, 2) rows of (view, elevation in degrees): the camera each image was taken from. Needed by a network that reads pixel-aligned image
             features (``SVRNet.needs_views``), and by a calibration's carving (skipped without them).
         calibrated: apply ``model.calibration`` (to the coarse and the refined SDF) when it has one.
     Returns:
@@ -205,15 +205,26 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
 
 
 def check_input_views(views, count: int, required: bool, name: str = "views") -> Optional[torch.Tensor]:
-    """(count,) float view indices from ``views`` (one per image, or a single one for all), or None
-    when not given; raises ValueError naming ``name`` when they are required and missing, or malformed
-    (not one per image, or outside [0, NUM_VIEWS): views 0..23, fractional ones between them)."""
+    """(count,) float view indices from ``views`` (one per image, or a single one for all), or
+    (count, 2) rows of (view, elevation in degrees) when given so (a camera at another elevation), or
+    None when not given; raises ValueError naming ``name`` when they are required and missing, or
+    malformed (not one per image, a view outside [0, NUM_VIEWS): views 0..23, fractional ones
+    between them, or an elevation outside (-90, 90))."""
     if views is None:
         if required:
             raise ValueError(f"{name}: this network reads image features where each sample projects into the input "
                              f"view, so it needs each image's NMR view index (0..23, the camera it was taken from)")
         return None
-    v = torch.as_tensor(views, dtype=torch.float32).reshape(-1).cpu()
+    v = torch.as_tensor(views, dtype=torch.float32).cpu()
+    if v.ndim == 2 and v.shape[1] == 2:  # rows of (view, elevation): a camera off NMR's 24
+        if v.shape[0] != count:
+            raise ValueError(f"{name}: expected one (view, elevation) row per image ({count}), got {v.shape[0]}")
+        el = v[:, 1]
+        if not bool((torch.isfinite(el) & (el > -90) & (el < 90)).all()):
+            raise ValueError(f"{name}: elevations must lie in (-90, 90) degrees, got {el.tolist()[:4]}")
+        rows, v = v, v[:, 0]
+    else:
+        rows, v = None, v.reshape(-1)
     if v.numel() == 1:
         v = v.expand(count)
     if v.numel() != count:
@@ -222,7 +233,7 @@ def check_input_views(views, count: int, required: bool, name: str = "views") ->
     if outside.numel():
         raise ValueError(f"{name} must be an NMR view index in [0, {NUM_VIEWS}) (0..{NUM_VIEWS - 1}, fractional "
                          f"allowed), got {_number(outside[0])}")
-    return v
+    return v if rows is None else rows
 
 
 def _number(x: torch.Tensor) -> str:

@@ -380,6 +380,18 @@ def dataset_shape(root: Union[str, os.PathLike], category_id: str, split: str, i
     return make_shape(names[category_id], object_seed(settings.seed, category_id, split, int(index)))
 
 
+def render_dataset_object(root: Union[str, os.PathLike], category_id: str, split: str, index: int,
+                          cameras: np.ndarray) -> np.ndarray:
+    """Renders of object ``index`` of a generated dataset from any (K, 2) cameras (azimuth,
+    elevation in degrees; ``render_shape``), in the object's own colours, light and anti-aliasing,
+    as its stored views were made: (K, 4, 64, 64) uint8."""
+    settings = read_settings(root)
+    shape = dataset_shape(root, category_id, split, index)
+    seed = object_seed(settings.seed, category_id, split, int(index))
+    return render_shape(shape, draw_colours(colour_rng(seed), shape.parts), NMR_LIGHTING, settings.supersample,
+                        cameras=np.asarray(cameras, dtype=np.float64).reshape(-1, 2))
+
+
 @dataclass(frozen=True)
 class _Chunk:
     """One work item: objects ``start .. stop - 1`` of a category and split."""
@@ -597,5 +609,6 @@ __all__ = [
     "ProceduralCategory", "ProceduralSettings", "make_shape", "style_of", "object_seed", "procedural_category",
     "render_shape", "extra_cameras", "EXTRA_ELEVATION_DEG", "voxelize_shape", "sample_near_surface", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
     "procedural_dataset_dir", "load_shading", "read_settings", "is_procedural_dataset", "dataset_shape",
+    "render_dataset_object",
     "default_workers",
 ]

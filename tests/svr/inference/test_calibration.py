@@ -70,19 +70,31 @@ def test_mirror_carves_what_the_mirror_image_sees_outside():
     assert bool(((one < 0) & (both > 0)).any())  # some inside samples are carved by their mirror image
 
 
+CONE_VIEWS = {
+    "nmr": torch.tensor([3, 7, 3, 20, 7]),
+    "fractional": torch.tensor([3.0, 7.5, 3.0, 20.25, 7.0]),
+    "elevations": torch.tensor([[3.0, 30.0], [7.5, 12.0], [3.0, 30.0], [-4.2, 47.0], [3.0, 47.0]]),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(CONE_VIEWS))
 @pytest.mark.parametrize("mirror_axis", [None, 0])
-def test_cone_of_a_mixed_batch_is_each_image_projected_by_its_own_camera(mirror_axis):
+def test_cone_of_a_mixed_batch_is_each_image_projected_by_its_own_camera(mirror_axis, kind):
     """The per-view lookup (computed once per view) puts every image's field in its own row: a batch
-    of repeated and different views equals the fields projected through each image's camera."""
+    of repeated and different views equals the fields projected through each image's camera, also
+    for fractional views and (view, elevation) rows (cameras off NMR's 24)."""
     n, hs, size = 12, 0.6, 32
     gen = torch.Generator().manual_seed(3)
     alpha = (torch.rand(5, size, size, generator=gen) > 0.4).float()
-    views = torch.tensor([3, 7, 3, 20, 7])
+    views = CONE_VIEWS[kind]
     field = silhouette_cone_sdf(alpha, views, n, hs, mirror_axis=mirror_axis)
     dist = signed_pixel_distance(alpha)[:, None]
     axis = torch.linspace(-hs, hs, n)
     points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    cams = renderer.Cameras.nmr(views, image_size=size)
+    if views.ndim == 2:
+        cams = renderer.Cameras.nmr(views[:, 0], image_size=size, elevation_deg=views[:, 1])
+    else:
+        cams = renderer.Cameras.nmr(views, image_size=size)
     per_depth = (2.0 * torch.tan(torch.deg2rad(cams.fov_deg) / 2.0) / size)[:, None]
 
     def expected(pts):

@@ -23,7 +23,7 @@ from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
 from svr.infer import main
 from svr.inference.images import find_images, load_image
-from svr.inference.prediction import LoadedModel, predict
+from svr.inference.prediction import LoadedModel, check_input_views, predict
 from svr.inference.reconstruction import (check_formats, clean_mesh, infer_files, mesh_problem,
                                           reconstruct_images)
 from svr.models.network import SVRPrediction
@@ -194,6 +194,21 @@ def test_input_view_range_in_the_python_api(tmp_path):
         predict(model, images, views=24)
     with pytest.raises(ValueError, match=r"input_view must be .*got -1$"):
         infer_files(model, [tmp_path / "disc.png"], tmp_path / "out", input_view=-1)
+
+
+def test_views_as_view_and_elevation_rows(tmp_path):
+    """A camera off NMR's 24 (an extra training view, a photo's estimate): (view, elevation) rows."""
+    model = LoadedModel(FieldNet(needs_views=True))
+    images = load_image(disc_png(tmp_path / "disc.png"))[None]
+    rows = torch.tensor([[3.5, 12.0]])
+    assert torch.equal(check_input_views(rows, 1, True), rows)
+    assert predict(model, images, views=rows).values.shape == (1, 16, 16, 16)
+    with pytest.raises(ValueError, match=r"elevations must lie in \(-90, 90\)"):
+        check_input_views(torch.tensor([[3.0, 95.0]]), 1, True)
+    with pytest.raises(ValueError, match="one \\(view, elevation\\) row per image \\(2\\), got 1"):
+        check_input_views(rows, 2, True)
+    with pytest.raises(ValueError, match="got 24.5"):
+        check_input_views(torch.tensor([[24.5, 30.0]]), 1, True)
 
 
 def test_an_inverted_mask_is_refused_when_the_object_touches_the_border(tmp_path):
