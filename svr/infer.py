@@ -43,7 +43,7 @@ def run(settings: InferSettings) -> InferenceReport:
                          views=settings.views, render_size=settings.render_size, batch_size=settings.batch_size,
                          formats=settings.formats, require_watertight=settings.require_watertight,
                          backend=settings.backend, progress=settings.progress, input_view=settings.input_view,
-                         azimuth=settings.azimuth, frame=settings.frame)
+                         azimuth=settings.azimuth, frame=settings.frame, elevation=settings.elevation)
     for item in report.images:
         if item.done:
             notes = ([item.camera] if item.camera else []) + ([item.problem] if item.problem else [])

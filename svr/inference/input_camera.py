@@ -1,8 +1,9 @@
 """The camera an input image was taken from: given (``input_view`` or ``azimuth``) or estimated by
 the network's ViewHead (``svr.models.camera``), with its place in the frame, the transform from
 the world (the training data's canonical frame: y up, the front towards -z) to the camera's frame,
-and what a user needs in a JSON file. The camera is NMR's: elevation 30 degrees, distance 2.732, a
-30 degree field of view; the estimate picks among its 24 azimuths (15 degrees apart)."""
+and what a user needs in a JSON file. The camera is NMR's distance 2.732 and 30 degree field of
+view at an elevation of 30 degrees unless given or estimated otherwise (a head with the elevation
+output, trained on extra views); the estimate's azimuth is one of NMR's 24 (15 degrees apart)."""
 from __future__ import annotations
 
 import math
@@ -29,6 +30,19 @@ def view_of_azimuth(azimuth_deg: float, name: str = "azimuth") -> float:
     return float((-a / 15.0) % NUM_VIEWS)
 
 
+def check_elevation(elevation: Optional[float]) -> Optional[float]:
+    """``elevation`` as a float in (-90, 90) degrees, or None; else a ValueError naming it."""
+    if elevation is None:
+        return None
+    try:
+        value = float(elevation)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (math.isfinite(value) and -90.0 < value < 90.0):
+        raise ValueError(f"elevation must be a number of degrees in (-90, 90), got {elevation!r}")
+    return value
+
+
 @dataclass(frozen=True)
 class InputCamera:
     """The camera of one input image.
@@ -41,6 +55,7 @@ class InputCamera:
             estimate's; None when given or unknown).
         transform: how the photo was cropped and scaled into the network's input (None: resized as
             it came).
+        elevation_deg: the camera's elevation (NMR's 30 unless given or estimated).
     """
 
     view: float
@@ -48,6 +63,12 @@ class InputCamera:
     probability: Optional[float] = None
     framing: Optional[Framing] = None
     transform: Optional[FrameTransform] = None
+    elevation_deg: float = NMR_ELEVATION_DEG
+
+    @property
+    def row(self) -> tuple[float, float]:
+        """(view, elevation): what ``predict_sdf`` and the renders take for a camera off NMR's 24."""
+        return float(self.view), float(self.elevation_deg)
 
     @property
     def azimuth_deg(self) -> float:
@@ -59,7 +80,7 @@ class InputCamera:
         the image's right, y to its top and z from the object towards the eye (the eye at the
         origin, looking down -z). NMR's camera is left-handed (``renderer.Cameras.nmr``), so this
         matrix has determinant -1: the camera-frame copy is the photo's handedness."""
-        cams = renderer.Cameras.nmr([self.view], dtype=torch.float64)
+        cams = renderer.Cameras.nmr([self.view], dtype=torch.float64, elevation_deg=[self.elevation_deg])
         eye = cams.eye[0].numpy()
         rot = np.stack([cams.right[0].numpy(), cams.up[0].numpy(), -cams.forward[0].numpy()])
         out = np.eye(4)
@@ -71,8 +92,8 @@ class InputCamera:
         """Plain values for ``<stem>_camera.json``."""
         out: dict[str, Any] = {
             "source": self.source, "nmr_view": round(float(self.view), 6), "azimuth_deg": round(self.azimuth_deg, 6),
-            "elevation_deg": NMR_ELEVATION_DEG, "distance": NMR_DISTANCE, "fov_deg": NMR_FOV_DEG,
-            "note": ("the training renders' camera (elevation and distance fixed); world: y up, front towards -z; "
+            "elevation_deg": round(float(self.elevation_deg), 6), "distance": NMR_DISTANCE, "fov_deg": NMR_FOV_DEG,
+            "note": ("the training renders' camera (distance and field of view fixed); world: y up, front towards -z; "
                      "camera frame: x right, y up, z towards the eye"),
             "world_to_camera": [[round(float(v), 9) for v in row] for row in self.world_to_camera()],
         }
@@ -97,9 +118,11 @@ def estimate_cameras(net, images: torch.Tensor) -> list[InputCamera]:
     device = next(head.parameters()).device
     est = head.estimate(images.to(device))
     probs, views, framing = est.probabilities.cpu(), est.views.cpu(), est.framing.float().cpu()
+    elevation = ([NMR_ELEVATION_DEG] * len(views) if est.elevation is None
+                 else [float(e) for e in est.elevation.float().cpu()])
     return [InputCamera(view=float(v), source="estimated", probability=float(p[v]),
-                        framing=Framing(*(float(x) for x in f)))
-            for v, p, f in zip(views.tolist(), probs, framing)]
+                        framing=Framing(*(float(x) for x in f)), elevation_deg=e)
+            for v, p, f, e in zip(views.tolist(), probs, framing, elevation)]
 
 
 def mesh_in_camera_frame(mesh, camera: InputCamera):
@@ -113,4 +136,4 @@ def mesh_in_camera_frame(mesh, camera: InputCamera):
     return m
 
 
-__all__ = ["InputCamera", "estimate_cameras", "mesh_in_camera_frame", "view_of_azimuth"]
+__all__ = ["InputCamera", "check_elevation", "estimate_cameras", "mesh_in_camera_frame", "view_of_azimuth"]

@@ -25,7 +25,8 @@ from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.outputs import ensure_output_dir, write_json, write_mesh, write_npz, write_png
 from svr.inference.framing import TRAINING_FRAMING, frame_image
 from svr.inference.images import find_images, find_mask, read_rgba, rgba_to_input
-from svr.inference.input_camera import InputCamera, estimate_cameras, mesh_in_camera_frame, view_of_azimuth
+from svr.inference.input_camera import (InputCamera, check_elevation, estimate_cameras, mesh_in_camera_frame,
+                                        view_of_azimuth)
 from svr.inference.prediction import LoadedModel, check_input_views, check_model, predict
 from svr.nmr.format import NUM_VIEWS, check_view_ids
 from svr.nmr.views import PREVIEW_VIEWS, render_previews
@@ -132,7 +133,8 @@ def _reconstruct(m: LoadedModel, images: torch.Tensor, views: Sequence[int], ren
     grid = predict(m, images, batch_size, views=input_views)
     renders = None
     if views:
-        per_image = (torch.tensor([[c.view + v for v in views] for c in cameras], dtype=torch.float64) % NUM_VIEWS
+        per_image = (torch.tensor([[((c.view + v) % NUM_VIEWS, c.elevation_deg) for v in views] for c in cameras],
+                                  dtype=torch.float64)
                      if cameras is not None else None)
         renders = torch.cat([render_previews(renderer.SDFGrid(v, -m.half_side, m.half_side),
                                              views if per_image is None else per_image[a:a + batch_size],
@@ -283,7 +285,8 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
                 views: Sequence[int] = PREVIEW_VIEWS, render_size: int = 128, batch_size: int = 16,
                 formats: Sequence[str] = OUTPUT_FORMATS, require_watertight: bool = False,
                 backend: str = "auto", progress: bool = False, input_view: Optional[float] = None,
-                azimuth: Optional[float] = None, frame: Optional[bool] = None) -> InferenceReport:
+                azimuth: Optional[float] = None, frame: Optional[bool] = None,
+                elevation: Optional[float] = None) -> InferenceReport:
     """Reads images (files, folders or glob patterns), reconstructs them and writes the results into
     ``output_dir``, image by image: an image that cannot be read, is refused (``read_rgba``,
     ``frame_image``) or gives no surface (or, with ``require_watertight``, a mesh that is not
@@ -306,6 +309,8 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
             views otherwise.
         input_view: the NMR view index (in [0, 24): azimuth -15 * view degrees at 30 degrees
             elevation) of every image's camera. azimuth: the same in degrees (not both).
+        elevation: every image's camera elevation in degrees (None: 30 with a given camera, else
+            the camera head's estimate where it has the elevation output, else 30).
         Others: see ``reconstruct_images`` and ``save_reconstruction``.
     Returns:
         InferenceReport: per image, the files written or why it failed, and what was skipped.
@@ -327,6 +332,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
                          "(trained before model.camera existed); give input_view=K (an NMR view, 0..23) or "
                          "azimuth=DEGREES")
     check_input_views(given, 1, False, "input_view")
+    check_elevation(elevation)
     if frame not in (None, True, False):
         raise ValueError(f"frame must be true, false or null (frame where the camera is not given), got {frame!r}")
     check_formats(formats)
@@ -343,7 +349,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
     for i, p in enumerate(paths):
         try:
             rgba = read_rgba(p, masks[i] if masks is not None else find_mask(p, mask_suffix))
-            loaded.append((i, *input_and_camera(m, rgba, str(p), given, framed)))
+            loaded.append((i, *input_and_camera(m, rgba, str(p), given, framed, elevation)))
         except (OSError, ValueError) as err:  # the message names the file
             results[i] = ImageResult(p, {}, error=str(err))
     with tqdm(total=len(paths), desc="infer", unit="img", disable=not progress) as bar:
@@ -353,7 +359,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
             cameras = [c for _, _, c in chunk]
             known = all(c is not None for c in cameras)
             recs = _reconstruct(m, torch.stack([t for _, t, _ in chunk]), views, render_size, batch_size, backend,
-                                [c.view for c in cameras] if known else None, cameras if known else None)
+                                torch.tensor([c.row for c in cameras]) if known else None, cameras if known else None)
             for (i, tensor, _), rec in zip(chunk, recs):
                 if len(rec.mesh.faces) == 0:
                     results[i] = ImageResult(paths[i], {}, error=rec.problem)
@@ -371,15 +377,16 @@ def _camera_words(camera: Optional[InputCamera]) -> Optional[str]:
     if camera is None or camera.source != "estimated":
         return None
     return (f"camera estimated: NMR view {camera.view:g}, azimuth {camera.azimuth_deg:g} degrees, "
-            f"probability {camera.probability:.2f}")
+            f"elevation {camera.elevation_deg:.0f}, probability {camera.probability:.2f}")
 
 
 def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optional[float],
-                      framed: bool) -> tuple[torch.Tensor, Optional[InputCamera]]:
+                     framed: bool, elevation: Optional[float] = None) -> tuple[torch.Tensor, Optional[InputCamera]]:
     """One photo's network input and camera: the camera given, or estimated by the camera head from
     the photo framed as the training renders' median (the head crops to the silhouette, so only the
     resolution matters); then, when ``framed``, the photo framed as the camera's renders are (the
-    head's framing when it has one, else the median)."""
+    head's framing when it has one, else the median). ``elevation`` (degrees) replaces the given or
+    estimated camera's."""
     head = getattr(m.net, "camera", None)
     camera = InputCamera(view=float(given)) if given is not None else None
     if head is not None and (camera is None or framed):
@@ -389,6 +396,8 @@ def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optiona
         framing = estimate.framing
     else:
         framing = TRAINING_FRAMING
+    if camera is not None and elevation is not None:
+        camera = dataclasses.replace(camera, elevation_deg=float(elevation))
     if not framed:
         return rgba_to_input(rgba, name, m.image_size), camera
     image, transform = frame_image(rgba, name, m.image_size, framing)

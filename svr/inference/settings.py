@@ -10,7 +10,7 @@ from typing import Optional, Union
 from sdfcommon.tooling.checks import check_int
 from sdfcommon.tooling.hardware import check_backend
 from sdfcommon.tooling.settings import PathSettings
-from svr.inference.input_camera import view_of_azimuth
+from svr.inference.input_camera import check_elevation, view_of_azimuth
 from svr.inference.prediction import check_input_views
 from svr.inference.reconstruction import check_formats
 from svr.nmr.format import check_view_ids
@@ -40,6 +40,8 @@ class InferSettings:
         input_view: the NMR view index the images were taken from, in [0, 24) (None: estimated by
             the checkpoint's camera head where it has one).
         azimuth: the same camera's azimuth in degrees (not both).
+        elevation: the camera's elevation in degrees (None: 30 for a given camera, else the camera
+            head's estimate where it has one).
         frame: crop and scale each photo as the training renders are framed (None: where the
             camera is not given).
         overwrite: write into an output folder that already holds files (same names are replaced);
@@ -61,6 +63,7 @@ class InferSettings:
     progress: bool
     input_view: Optional[float]
     azimuth: Optional[float]
+    elevation: Optional[float]
     frame: Optional[bool]
     overwrite: bool
     paths: PathSettings
@@ -79,6 +82,7 @@ class InferSettings:
             raise ValueError("give input_view or azimuth, not both")
         if self.azimuth is not None:
             view_of_azimuth(self.azimuth)
+        check_elevation(self.elevation)
 
 
 __all__ = ["InferSettings", "MAX_RENDER_SIZE"]

@@ -63,6 +63,10 @@ def normalise_crops(images: torch.Tensor, size: int = 32) -> tuple[torch.Tensor,
     return crops, torch.stack([extent, cx, cy], dim=1) / s
 
 
+# The elevation output is (elevation - 30) / 20: about -1 .. 1 over the extra views' 10 to 50 degrees.
+ELEVATION_CENTRE, ELEVATION_SCALE = 30.0, 20.0
+
+
 @dataclass(frozen=True)
 class ViewEstimate:
     """``ViewHead.estimate``'s answer for B images.
@@ -71,10 +75,12 @@ class ViewEstimate:
         probabilities: (B, 24) of each NMR view.
         framing: (B, 3) extent, centre x, centre y of the silhouette in a training render from the
             most probable view (fractions of the image side).
+        elevation: (B,) degrees, or None from a head without the elevation output.
     """
 
     probabilities: torch.Tensor
     framing: torch.Tensor
+    elevation: torch.Tensor | None = None
 
     @property
     def views(self) -> torch.Tensor:
@@ -83,17 +89,20 @@ class ViewEstimate:
 
 
 class ViewHead(nn.Module):
-    """Image -> NMR view logits (24) and framing (3), from ``normalise_crops``.
+    """Image -> NMR view logits (24) and framing (3), from ``normalise_crops``, and the camera's
+    elevation where asked for.
 
     Args:
         channels: conv blocks (3x3 conv, batch norm, ReLU, 2x2 max pool), then a global mean.
         crop_size: side of the normalised crop.
         train_views: views of each training object it learns from per step (at most the batch's):
             its cost per step grows with them.
+        elevation: also regress the camera's elevation (only data with extra views, at other
+            elevations than NMR's 30 degrees, teaches it anything: ``data.extra_views``).
     """
 
     def __init__(self, channels: tuple[int, ...] | list[int] = (32, 64, 128), crop_size: int = 32,
-                 train_views: int = 4) -> None:
+                 train_views: int = 4, elevation: bool = False) -> None:
         super().__init__()
         check_int(crop_size, "crop_size", minimum=8)
         check_int(train_views, "train_views", minimum=1)
@@ -111,30 +120,49 @@ class ViewHead(nn.Module):
         with torch.no_grad():  # the untrained framing: the procedural renders' median (45 / 64, centre (32, 33))
             self.out.bias[NUM_VIEWS:] = torch.tensor([0.7, 0.5, 0.52])
         self.crop_size = int(crop_size)
+        self.elevation_out = nn.Linear(c_in, 1) if elevation else None
+        if self.elevation_out is not None:
+            nn.init.zeros_(self.elevation_out.weight)  # untrained: NMR's 30 degrees
+            nn.init.zeros_(self.elevation_out.bias)
 
     def forward(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, 4, S, S) RGBA -> (B, 24) view logits and (B, 3) framing."""
         return self._from_crops(normalise_crops(images, self.crop_size)[0])
 
     def _from_crops(self, crops: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        y = self.out(self.features(crops).mean(dim=(2, 3)))
-        return y[:, :NUM_VIEWS], y[:, NUM_VIEWS:]
+        logits, framing, _ = self._outputs(crops)
+        return logits, framing
 
-    def loss(self, images: torch.Tensor, views: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The training loss of (N, 4, S, S) renders from known NMR ``views`` (N,): cross-entropy of
-        the view plus the L1 error of the framing (fractions of the image side: weighted more, its
-        gradients drown the view's, and on the demo's data the views right after 600 steps fell from
-        42% to 13%), and the share of views right."""
+    def _outputs(self, crops: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        feats = self.features(crops).mean(dim=(2, 3))
+        y = self.out(feats)
+        elevation = self.elevation_out(feats)[:, 0] if self.elevation_out is not None else None
+        return y[:, :NUM_VIEWS], y[:, NUM_VIEWS:], elevation
+
+    def loss(self, images: torch.Tensor, views: torch.Tensor,
+             elevations: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """The training loss of (N, 4, S, S) renders from known NMR ``views`` (N,) (for a view
+        between them, the nearest): cross-entropy of the view plus the L1 error of the framing
+        (fractions of the image side: weighted more, its gradients drown the view's, and on the demo's
+        data the views right after 600 steps fell from 42% to 13%), plus, with the elevation output,
+        the L1 error of the elevation in units of ``ELEVATION_SCALE`` degrees against
+        ``elevations`` (N,) (None: all NMR's 30); and the share of views right."""
         crops, target = normalise_crops(images, self.crop_size)  # once: the crops and the framing
-        logits, framing = self._from_crops(crops)
+        logits, framing, elevation = self._outputs(crops)
         loss = F.cross_entropy(logits, views.long()) + (framing - target).abs().sum(dim=1).mean()
+        if elevation is not None:
+            want = torch.full_like(elevation, ELEVATION_CENTRE) if elevations is None else elevations.to(elevation)
+            loss = loss + (elevation - (want - ELEVATION_CENTRE) / ELEVATION_SCALE).abs().mean()
         return loss, (logits.argmax(dim=1) == views).float().mean()
 
     @torch.no_grad()
     def estimate(self, images: torch.Tensor) -> ViewEstimate:
-        """The view probabilities and framing of (B, 4, S, S) RGBA images (in eval mode)."""
-        logits, framing = self(images)
-        return ViewEstimate(probabilities=logits.softmax(dim=1), framing=framing)
+        """The view probabilities, framing and (with the elevation output) elevation of (B, 4, S, S)
+        RGBA images (in eval mode)."""
+        logits, framing, elevation = self._outputs(normalise_crops(images, self.crop_size)[0])
+        if elevation is not None:
+            elevation = (ELEVATION_CENTRE + ELEVATION_SCALE * elevation).clamp(-89.0, 89.0)
+        return ViewEstimate(probabilities=logits.softmax(dim=1), framing=framing, elevation=elevation)
 
 
 __all__ = ["CROP_FILL", "ViewEstimate", "ViewHead", "normalise_crops"]

@@ -217,7 +217,9 @@ class SVRLightningModule(pl.LightningModule):
                 # The batch's first views (random but the input), with their known cameras; the
                 # head's weights are its own.
                 k = self.net.camera.train_views
-                camera, right = self.net.camera.loss(batch.images[:, :k].flatten(0, 1), batch.view_ids[:, :k].flatten())
+                elevations = batch.cameras[:, :k, 1].flatten() if batch.cameras is not None else None
+                camera, right = self.net.camera.loss(batch.images[:, :k].flatten(0, 1), batch.view_ids[:, :k].flatten(),
+                                                     elevations)
                 loss = loss + camera
                 self.log("train/camera", camera.detach(), batch_size=bs, sync_dist=True)
                 self.log("train/camera_views_right", right, batch_size=bs, sync_dist=True)

@@ -87,12 +87,12 @@ def render_previews(grid: renderer.SDFGrid, views: Sequence[int] | torch.Tensor 
     Args:
         grid: B SDF grids over a cube centred at the origin (the network's box).
         views: the same K view indices 0..23 for every grid, or a (B, K) tensor of each grid's own
-            (fractional allowed).
+            (fractional allowed), or a (B, K, 2) tensor of (view, elevation) rows.
     Returns:
         (B, K, S, S, 3) float32 CPU in [0, 1].
     """
-    if isinstance(views, torch.Tensor) and views.ndim == 2:
-        check_shape(views, "views", f"{grid.batch_size}, K")
+    if isinstance(views, torch.Tensor) and views.ndim in (2, 3):
+        check_shape(views, "views", f"{grid.batch_size}, K" + (", 2" if views.ndim == 3 else ""))
         if not bool(torch.isfinite(views).all()):
             raise ValueError("views must be finite NMR view indices")
         ids = views.detach().double().cpu()

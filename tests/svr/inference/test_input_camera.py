@@ -18,7 +18,8 @@ from PIL import Image
 import renderer
 from sdfcommon.tooling.commands import compose
 from svr.infer import main
-from svr.inference.input_camera import InputCamera, mesh_in_camera_frame, view_of_azimuth
+from sdfcommon.tooling.settings import build_settings
+from svr.inference.input_camera import InputCamera, check_elevation, mesh_in_camera_frame, view_of_azimuth
 from svr.inference.prediction import load_model
 from svr.inference.reconstruction import infer_files
 from svr.models.checkpoint_layout import CHECKPOINT_KEY
@@ -38,6 +39,10 @@ def pixel_checkpoint(folder: Path, *extra: str) -> Path:
     return path
 
 
+def compose_infer_settings(overrides: list[str]):
+    return build_settings(compose("infer", ["ckpt_path=x.ckpt", "images=a.png", *overrides]))
+
+
 def photo_jpeg(path: Path, size: tuple[int, int] = (160, 120), centre=(100, 50), radius: float = 22) -> Path:
     """A JPEG with no alpha: a red box and a grey disc, off-centre, on a plain white background."""
     w, h = size
@@ -54,16 +59,25 @@ def test_azimuths_and_nmr_views():
     assert view_of_azimuth(15) == 23.0 and InputCamera(view=6).azimuth_deg == 270.0
     with pytest.raises(ValueError, match="azimuth must be a finite number"):
         view_of_azimuth(float("inf"))
+    assert check_elevation(None) is None and check_elevation("12.5") == 12.5
+    for bad in (90, -95, "high", float("nan")):
+        with pytest.raises(ValueError, match=r"elevation must be a number of degrees in \(-90, 90\)"):
+            check_elevation(bad)
+    with pytest.raises(ValueError, match="elevation must be"):
+        compose_infer_settings(["elevation=95"])
 
 
-@pytest.mark.parametrize("view", [0.0, 5.0, 13.5])
-def test_the_camera_frame_is_the_renders_x_right_y_up_z_to_the_eye(view):
+@pytest.mark.parametrize("view, elevation", [(0.0, 30.0), (5.0, 30.0), (13.5, 30.0), (7.25, 12.0), (20.0, 48.0)])
+def test_the_camera_frame_is_the_renders_x_right_y_up_z_to_the_eye(view, elevation):
     """A point on the ray through pixel (row r, column c) of the renderer's NMR camera lands, in the
     camera's frame, at x / -z and y / -z of that pixel's place on the image plane (x to the right,
-    y to the top); the eye is the origin and the world origin is 2.732 in front of it."""
-    cams = renderer.Cameras.nmr([view], image_size=8, dtype=torch.float64)
+    y to the top); the eye is the origin and the world origin is 2.732 in front of it (also at
+    elevations other than NMR's)."""
+    cams = renderer.Cameras.nmr([view], image_size=8, dtype=torch.float64, elevation_deg=[elevation])
     origins, directions = cams.rays()
-    m = InputCamera(view=view).world_to_camera()
+    camera = InputCamera(view=view, elevation_deg=elevation)
+    assert camera.row == (view, elevation) and camera.record()["elevation_deg"] == elevation
+    m = camera.world_to_camera()
     assert np.allclose(m @ np.array([0, 0, 0, 1.0]), [0, 0, -2.732, 1], atol=1e-9)
     assert np.linalg.det(m[:3, :3]) == pytest.approx(-1.0)  # NMR's camera is left-handed
     half = math.tan(math.radians(15.0))
@@ -113,6 +127,22 @@ def test_a_jpeg_with_no_mask_and_no_camera_gives_every_output(tmp_path, monkeypa
     assert np.allclose(in_camera.vertices, canonical.vertices @ m[:3, :3].T + m[:3, 3], atol=1e-5)
     preview = np.asarray(Image.open(out / "mug_views.png"))
     assert preview.shape[1] == 6 * 32 + 5 * 4  # input RGB, its alpha, then the camera's view and 3 more
+
+
+def test_the_estimated_or_given_elevation_reaches_the_json_and_the_camera_frame(tmp_path, monkeypatch):
+    """A head with the elevation output (untrained: 30 degrees) writes its estimate; elevation=
+    replaces it, and the camera-frame mesh follows the camera at that elevation."""
+    ckpt = pixel_checkpoint(tmp_path, "model.camera.elevation=true")
+    photo = photo_jpeg(tmp_path / "mug.jpg")
+    for name, extra, want in (("estimated", [], 30.0), ("given", ["elevation=12.5"], 12.5)):
+        out = tmp_path / name
+        run_entry(main, [f"ckpt_path={ckpt}", f"images={photo}", f"output_dir={out}", "device=cpu", "progress=false",
+                         "render_size=16", *extra], monkeypatch)
+        camera = json.loads((out / "mug_camera.json").read_text())
+        assert camera["elevation_deg"] == pytest.approx(want, abs=1e-4)
+        m = np.array(camera["world_to_camera"])
+        expected = InputCamera(view=camera["nmr_view"], elevation_deg=want).world_to_camera()
+        assert np.allclose(m, expected, atol=1e-6)
 
 
 def test_a_camera_reading_checkpoint_without_a_head_needs_the_camera(tmp_path, monkeypatch, capsys):
