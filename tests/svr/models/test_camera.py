@@ -88,9 +88,10 @@ def test_the_head_is_a_plain_module_with_checked_arguments():
 
 
 def test_the_elevation_output_starts_at_nmr_and_its_loss_has_the_known_gradient():
-    """Untrained, the elevation output says NMR's 30 degrees; the L1 term's gradient on its bias is
-    the mean sign of (prediction - target) / 20 degrees: -1 for targets above 30, +1 below, 0 at 30
-    (or with no targets); a head without the output gives none and takes the same loss as before."""
+    """Untrained, the elevation output says NMR's 30 degrees; the squared term's gradient on its
+    bias is twice the mean of (prediction - target) / 20 degrees: -2 for targets of 50, +1.8 for
+    12, +0.125 for 10, 20, 40 and 45, 0 with no targets (all 30); a head without the output gives
+    none and takes the same loss as before."""
     torch.manual_seed(0)
     images = torch.stack([pointer(v) for v in (0, 5, 9, 14)])
     views = torch.tensor([0, 5, 9, 14])
@@ -98,8 +99,8 @@ def test_the_elevation_output_starts_at_nmr_and_its_loss_has_the_known_gradient(
     est = head.eval().estimate(images)
     assert torch.equal(est.elevation, torch.full((4,), 30.0))
     head.train()
-    for targets, grad in ((torch.full((4,), 50.0), -1.0), (torch.full((4,), 12.0), 1.0),
-                          (torch.tensor([10.0, 20.0, 40.0, 45.0]), 0.0), (None, 0.0)):
+    for targets, grad in ((torch.full((4,), 50.0), -2.0), (torch.full((4,), 12.0), 1.8),
+                          (torch.tensor([10.0, 20.0, 40.0, 45.0]), 0.125), (None, 0.0)):
         head.zero_grad()
         head.loss(images, views, targets)[0].backward()
         assert float(head.elevation_out.bias.grad) == pytest.approx(grad)
