@@ -42,7 +42,7 @@ from sdfcommon.tooling import outputs
 from sdfcommon.tooling.outputs import ensure_output_dir
 from sdfcommon.tooling.settings import build_settings
 
-CONFIGS = {"default": (), "paper": ("mvr/preset=paper",)}
+CONFIGS = {"default": (), "paper": ("mvr/preset=paper",), "visibility": ("scene.gradient=visibility",)}
 # Paper section 5, symmetric Hausdorff relative to the bounding box (SPEC.md section 2).
 PAPER = {"torus": 0.015637, "bunny": 0.026654, "dragon": 0.074723}
 COLUMNS = ("mesh", "config", "hausdorff_rel", "hausdorff99_rel", "chamfer_rel", "seconds", "pass_seconds",
@@ -311,7 +311,8 @@ def main(argv: Optional[list[str]] = None) -> None:
     ap.add_argument("mesh_folder", type=Path, help="folder of meshes (never downloaded: see README.md)")
     ap.add_argument("--meshes", nargs="*", default=[], help="file stems to run (default: every mesh)")
     ap.add_argument("--shapes", nargs="*", default=["torus"], help="built-in shapes to add (default: torus)")
-    ap.add_argument("--configs", nargs="*", default=list(CONFIGS), choices=list(CONFIGS))
+    ap.add_argument("--configs", nargs="*", default=["default", "paper"], choices=list(CONFIGS),
+                    help="default and paper unless named; visibility: scene.gradient=visibility")
     ap.add_argument("--out", type=Path, default=Path("outputs/mvr_real_scans"))
     ap.add_argument("--docs", default="docs", help="folder for mvr_real_scans.md ('' for none)")
     ap.add_argument("--fresh", action="store_true", help="redo finished runs")
