@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from sdfcommon.tooling.checks import check_int
 from renderer import NMR_ELEVATION_DEG
+from sdfcommon.tooling.checks import check_int
 from svr.nmr.format import (BACKGROUND_MODES, KINDS, NUM_VIEWS, PathLike, check_npz, check_split, check_view_ids,
                             images_to_float, nmr_file, open_extra_views, open_prepared, read_npz,
                             resolve_categories)
