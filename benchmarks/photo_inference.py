@@ -34,6 +34,7 @@ from svr.inference.images import read_rgba, rgba_to_input
 from svr.inference.prediction import load_model, predict_sdf
 from svr.inference.reconstruction import input_and_camera
 from svr.nmr.metrics import iou_table, voxel_iou, voxels_protocol
+from svr.nmr.views import view_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 CANVAS = 240  # room for the largest object (2 x 1.2 x 64 pixels) moved by 10%
@@ -67,7 +68,7 @@ def sample_test_views(root: Path, test, obj: int, views: int, random_views: bool
     cams = np.stack([rng.uniform(0.0, 360.0, views), rng.uniform(*EXTRA_ELEVATION_DEG, views)], axis=1)
     c, o = test.locate(obj)
     renders = render_dataset_object(root, test.categories[c][0], "test", o, cams)
-    return renders, np.stack([(-cams[:, 0] / 15.0) % 24.0, cams[:, 1]], axis=1)
+    return renders, view_rows(cams).numpy()
 
 
 def run(ckpt: str, preset: str, views: int, seed: int, work: Path, random_views: bool = False) -> dict:

@@ -22,6 +22,7 @@ from sdfcommon.tooling.checks import check_int
 from svr.nmr.format import (BACKGROUND_MODES, KINDS, NUM_VIEWS, PathLike, check_npz, check_split, check_view_ids,
                             images_to_float, nmr_file, open_extra_views, open_prepared, read_npz,
                             resolve_categories)
+from svr.nmr.views import view_rows
 
 
 class NMRDataset(Dataset):
@@ -136,16 +137,15 @@ class NMRDataset(Dataset):
 
     def cameras(self, index: int, view_ids: Sequence[int]) -> torch.Tensor:
         """(V, 2) float32 rows of (NMR view coordinate, elevation in degrees) of the views
-        (``svr.nmr.views.view_cameras``): (k, 30) for NMR view k, ``(-azimuth / 15, elevation)`` for
-        an extra view."""
+        (``svr.nmr.views.view_cameras``): (k, 30) for NMR view k, ``svr.nmr.views.view_rows`` of an
+        extra view's angles."""
         ids = self._split_ids(view_ids)
         out = np.stack([ids.astype(np.float32), np.full(len(ids), NMR_ELEVATION_DEG, np.float32)], axis=1)
         extra = ids >= NUM_VIEWS
         if extra.any():
             c, o = self.locate(index)
-            angles = np.asarray(self._open_extras()[c][1][o][ids[extra] - NUM_VIEWS], dtype=np.float32)
-            out[extra, 0] = -angles[:, 0] / 15.0
-            out[extra, 1] = angles[:, 1]
+            angles = np.asarray(self._open_extras()[c][1][o][ids[extra] - NUM_VIEWS])
+            out[extra] = view_rows(angles).numpy()
         return torch.from_numpy(out)
 
     def nearest_nmr_views(self, index: int, view_ids: Sequence[int]) -> torch.Tensor:

@@ -22,22 +22,32 @@ PREVIEW_SCENE = renderer.Scene(effects=("shading",), lights=(), camera_light=0.7
                                ambient=0.25, albedo=(0.8, 0.8, 0.8), background=1.0)
 
 
+def view_rows(angles) -> torch.Tensor:
+    """(N, 2) float64 rows of (view, elevation) for ``view_cameras`` from (N, 2) rows of (azimuth,
+    elevation) in degrees (``svr.nmr.format.extra_view_files``' convention): the view coordinate
+    is ``-azimuth / 15``, taken modulo 24."""
+    a = torch.as_tensor(angles, dtype=torch.float64).reshape(-1, 2)
+    return torch.stack([torch.remainder(-a[:, 0] / 15.0, float(renderer.NMR_NUM_VIEWS)), a[:, 1]], dim=1)
+
+
 def view_cameras(views: torch.Tensor, image_size: int = 64, dtype: torch.dtype = torch.float32,
-                 device=None) -> renderer.Cameras:
+                 device=None, distance: float = renderer.NMR_DISTANCE) -> renderer.Cameras:
     """The cameras of N views given as NMR view coordinates.
 
     Args:
         views: (N,) view indices (azimuth ``-15 * view`` degrees, fractional allowed) at the NMR
             elevation (30 degrees), or (N, 2) rows of (view, elevation in degrees): views the
             dataset's 24 do not hold, as the extra training views (``svr.data.datasets``) have.
+        distance: the eye's distance from the origin (NMR's 2.732).
     Returns:
-        ``renderer.Cameras.nmr`` of those views (NMR distance and field of view).
+        ``renderer.Cameras.nmr`` of those views (NMR field of view).
     """
     v = torch.as_tensor(views).detach().cpu()
     if v.ndim == 2 and v.shape[1] == 2:
-        cams = renderer.Cameras.nmr(v[:, 0], image_size=image_size, dtype=dtype, elevation_deg=v[:, 1])
+        cams = renderer.Cameras.nmr(v[:, 0], image_size=image_size, dtype=dtype, distance=distance,
+                                    elevation_deg=v[:, 1])
     elif v.ndim == 1:
-        cams = renderer.Cameras.nmr(v, image_size=image_size, dtype=dtype)
+        cams = renderer.Cameras.nmr(v, image_size=image_size, dtype=dtype, distance=distance)
     else:
         raise ValueError(f"views must be (N,) NMR view indices or (N, 2) rows of (view, elevation), got shape "
                          f"{tuple(v.shape)}")
@@ -107,4 +117,4 @@ def render_previews(grid: renderer.SDFGrid, views: Sequence[int] | torch.Tensor 
     return colours.permute(0, 1, 3, 4, 2).float().clamp(0, 1).cpu()
 
 
-__all__ = ["view_cameras", "render_views", "render_previews", "PREVIEW_SCENE", "PREVIEW_VIEWS"]
+__all__ = ["view_rows", "view_cameras", "render_views", "render_previews", "PREVIEW_SCENE", "PREVIEW_VIEWS"]

@@ -18,6 +18,7 @@ import renderer
 from sdfcommon.numerics.raycast import RayCaster
 from svr.data.build.meshes import LoadedMesh
 from svr.data.procedural.appearance import NMR_LIGHTING, Lighting
+from svr.nmr.views import view_cameras, view_rows
 
 
 @functools.lru_cache(maxsize=4)
@@ -36,9 +37,7 @@ def camera_sample_rays(image_size: int, supersample: int, cameras: np.ndarray,
                        distance: float) -> tuple[np.ndarray, np.ndarray]:
     """As ``nmr_sample_rays`` for K cameras given as (K, 2) rows of (azimuth, elevation) in degrees
     (``svr.nmr.format.extra_view_files``' convention)."""
-    cameras = np.asarray(cameras, dtype=np.float64).reshape(-1, 2)
-    cams = renderer.Cameras.nmr(torch.from_numpy(-cameras[:, 0] / 15.0), image_size=image_size * supersample,
-                                dtype=torch.float64, distance=distance, elevation_deg=torch.from_numpy(cameras[:, 1]))
+    cams = view_cameras(view_rows(cameras), image_size * supersample, torch.float64, distance=distance)
     _, d = cams.rays()
     return cams.eye.numpy().astype(np.float32), d.numpy().astype(np.float32)
 

@@ -36,6 +36,7 @@ from svr.data.procedural.categories import (ALL_CATEGORIES, EXTRA_CATEGORIES, NM
 from svr.data.procedural.csg import CSGShape, surface_normals_and_parts, trace_rays
 from svr.data.types import ShadingModel
 from svr.nmr.format import IMAGE_SHAPE, NUM_VIEWS, SPLITS, VOXEL_SHAPE, extra_view_files, nmr_file
+from svr.nmr.views import view_cameras, view_rows
 from svr.nmr.voxels import NMR_VOXEL_RESOLUTION, nmr_voxel_centres, voxelize_sdf_protocol
 
 # Bump when the shapes, renders or file contents change: it is part of the cache key.
@@ -64,9 +65,7 @@ def _nmr_rays(image_size: int, num_views: int = NUM_VIEWS) -> tuple[np.ndarray, 
 def _camera_rays(image_size: int, cameras: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Eyes (K, 3) and unit ray directions (K, H, W, 3), float64, of K cameras at the NMR distance
     and field of view, given as rows of (azimuth, elevation) in degrees (NMR's convention)."""
-    cameras = np.asarray(cameras, dtype=np.float64).reshape(-1, 2)
-    cams = renderer.Cameras.nmr(torch.from_numpy(-cameras[:, 0] / 15.0), image_size=image_size, dtype=torch.float64,
-                                elevation_deg=torch.from_numpy(cameras[:, 1]))
+    cams = view_cameras(view_rows(cameras), image_size, torch.float64)
     _, d = cams.rays()
     return cams.eye.numpy().copy(), d.numpy().copy()
 
