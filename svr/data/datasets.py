@@ -148,11 +148,6 @@ class NMRDataset(Dataset):
             out[extra] = view_rows(angles).numpy()
         return torch.from_numpy(out)
 
-    def nearest_nmr_views(self, index: int, view_ids: Sequence[int]) -> torch.Tensor:
-        """(V,) long: each view itself for the 24, the NMR view nearest in azimuth for an extra one."""
-        cams = self.cameras(index, view_ids)
-        return torch.round(cams[:, 0]).long() % NUM_VIEWS
-
     # ------------------------------------------------------------------ indexing
     def __len__(self) -> int:
         return int(self.offsets[-1])
@@ -241,7 +236,7 @@ class TrainViews(Dataset):
         }
         if max(views) >= NUM_VIEWS:  # an extra view: its camera, and the nearest NMR view as its id
             item["cameras"] = self.objects.cameras(obj, views)
-            item["view_ids"] = self.objects.nearest_nmr_views(obj, views)
+            item["view_ids"] = torch.round(item["cameras"][:, 0]).long() % NUM_VIEWS
         return item
 
 
