@@ -94,8 +94,9 @@ class ObjectViewSampler(RankShardedSampler):
         if not 0.0 <= float(extra_share) < 1.0:
             raise ValueError(f"extra_share must be in [0, 1), got {extra_share!r}")
         if extra_share > 0 and extra_views == 0:
-            raise ValueError(f"extra_share (data.extra_view_share) is {extra_share} but the training split holds no "
-                             f"extra views; generate them (data.extra_views, or the builder's extra_views) or set it to 0")
+            raise ValueError(f"extra_share (data.extra_view_share) is {extra_share} but the training split holds "
+                             f"no extra views; generate them (data.extra_views, or the builder's extra_views) or "
+                             f"set it to 0")
         if extra_share > 0 and views_per_sample > num_views + extra_views:
             raise ValueError(f"views_per_sample ({views_per_sample}) exceeds the {num_views + extra_views} views")
         self.extra_views = int(extra_views)

@@ -86,8 +86,9 @@ class Calibration:
     def cone(self, images: torch.Tensor, views: Optional[torch.Tensor], resolution: int,
              half_side: float) -> Optional[torch.Tensor]:
         """The field this calibration carves with (``silhouette_cone_sdf``) for ``images`` (B, 4, S,
-        S) RGBA taken from NMR views ``views`` (B,) (or (B, 2) rows of view and elevation), on the N^3 grid over ``[-half_side,
-        half_side]^3``; None when it carves nothing, or without views (nothing can be carved)."""
+        S) RGBA taken from NMR views ``views`` (B,) (or (B, 2) rows of view and elevation), on the
+        N^3 grid over ``[-half_side, half_side]^3``; None when it carves nothing, or without views
+        (nothing can be carved)."""
         if self.carve == "none" or views is None:
             return None
         axis = self.mirror_axis if self.carve == "view+mirror" else None
@@ -127,8 +128,9 @@ def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.
 def _view_lookup(view: tuple[float, ...], size: int, resolution: int, half_side: float, flip_axis: Optional[int],
                  device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where each sample of the N^3 grid (mirrored across ``flip_axis`` when not None) projects in
-    the S x S image of ``view`` (an NMR view index, or (view, elevation): ``view_cameras``): ``grid_sample`` coordinates (1, 1, N^3, 2), the camera's
-    ``pixel_angle`` (1,) (a pixel's world size per unit of depth) and each sample's depth (N^3,).
+    the S x S image of ``view`` (an NMR view index, or (view, elevation): ``view_cameras``):
+    ``grid_sample`` coordinates (1, 1, N^3, 2), the camera's ``pixel_angle`` (1,) (a pixel's
+    world size per unit of depth) and each sample's depth (N^3,).
     The same for every image from that view, so it is computed once: projecting the grid for each
     image was most of an evaluation's prediction time."""
     axis = torch.linspace(-half_side, half_side, resolution, dtype=torch.float32, device=device)

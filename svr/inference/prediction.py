@@ -172,8 +172,9 @@ def predict_sdf(model: LoadedModel, images: torch.Tensor, batch_size: int = 64,
             (``svr.nmr.voxels.clip_to_box``), so none reaches past the benchmark's voxel grid. Every
             output of this module and ``svr.evaluate`` goes through it.
         views: the images' NMR view indices (B,) (0..23, fractional allowed), or one for all, or
-            (B, 2) rows of (view, elevation in degrees): the camera each image was taken from. Needed by a network that reads pixel-aligned image
-            features (``SVRNet.needs_views``), and by a calibration's carving (skipped without them).
+            (B, 2) rows of (view, elevation in degrees): the camera each image was taken from.
+            Needed by a network that reads pixel-aligned image features (``SVRNet.needs_views``),
+            and by a calibration's carving (skipped without them).
         calibrated: apply ``model.calibration`` (to the coarse and the refined SDF) when it has one.
     Returns:
         SVRPrediction: ``coarse`` and ``refined`` (None without the refiner), (B, N, N, N) float32

@@ -477,9 +477,9 @@ def generate_procedural_dataset(out_dir: Union[str, os.PathLike], settings: Proc
     world point ``((j - 15.5)/31, (i - 15.5)/31, (15.5 - k)/31)``. The folder holds
     ``{cid}_{split}_images.npz`` and ``{cid}_{split}_voxels.npz`` (key ``arr_0``, as NMR ShapeNet), a
     ``metadata.json`` (categories, settings, lighting), and the memory-mapped ``.npy`` copies
-    that ``svr.nmr.format.prepare_nmr`` makes of real NMR data. With ``settings.extra_views`` = K each training object also gets K views from
-    ``extra_cameras`` (any azimuth, elevation 10 to 50 degrees), rendered the same way, in the two
-    ``.npy`` files of ``svr.nmr.format.extra_view_files``.
+    that ``svr.nmr.format.prepare_nmr`` makes of real NMR data. With ``settings.extra_views`` = K
+    each training object also gets K views from ``extra_cameras`` (any azimuth, elevation 10 to 50
+    degrees), rendered the same way, in the two ``.npy`` files of ``svr.nmr.format.extra_view_files``.
 
     The work goes into ``.<name>.partial`` beside ``out_dir`` in chunks of ``CHUNK_OBJECTS``
     objects: each chunk is written into the memory-mapped ``.npy`` arrays, flushed, then marked
@@ -606,7 +606,8 @@ def load_shading(root: Union[str, os.PathLike]) -> Optional[ShadingModel]:
 __all__ = [
     "GENERATOR_VERSION", "ALL_CATEGORIES", "NMR_PROCEDURAL_CATEGORIES", "EXTRA_CATEGORIES",
     "ProceduralCategory", "ProceduralSettings", "make_shape", "style_of", "object_seed", "procedural_category",
-    "render_shape", "extra_cameras", "EXTRA_ELEVATION_DEG", "voxelize_shape", "sample_near_surface", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
+    "render_shape", "extra_cameras", "EXTRA_ELEVATION_DEG",
+    "voxelize_shape", "sample_near_surface", "VOXEL_RULES", "generate_procedural_dataset", "ensure_procedural_dataset",
     "procedural_dataset_dir", "load_shading", "read_settings", "is_procedural_dataset", "dataset_shape",
     "render_dataset_object",
     "default_workers",
