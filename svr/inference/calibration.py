@@ -11,17 +11,13 @@ of its own (0: the silhouette's exact cone). Both only use the input image and i
 apply wherever the network does."""
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import asdict, dataclass
 from typing import Any, Mapping, Optional
 
-import numpy as np
 import torch
-from scipy import ndimage
-from torch.nn import functional as F
 
-from svr.nmr.views import view_cameras
+from svr.nmr.cones import silhouette_cone_sdf
 
 CARVES = ("none", "view", "view+mirror")
 
@@ -105,78 +101,4 @@ class Calibration:
         return torch.maximum(out, cone + float(self.carve_level) if float(self.carve_level) != 0.0 else cone)
 
 
-def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
-    """(B, H, W) alpha -> (B, H, W) signed distance (pixels) from each pixel centre to the
-    silhouette's edge, taken half a pixel outside the silhouette's outer pixel centres: positive
-    outside (alpha < threshold), negative inside."""
-    masks = (alpha.detach().cpu().numpy() >= threshold)
-    out = np.empty(masks.shape, np.float32)
-    for i, inside in enumerate(masks):
-        if not inside.any():
-            out[i] = 1e6  # no silhouette: everything is outside
-            continue
-        if inside.all():
-            out[i] = -1e6
-            continue
-        outside_d = ndimage.distance_transform_edt(~inside)  # to the nearest silhouette pixel
-        inside_d = ndimage.distance_transform_edt(inside)   # to the nearest background pixel
-        out[i] = np.where(inside, 0.5 - inside_d, outside_d - 0.5)
-    return torch.from_numpy(out).to(alpha.device)
-
-
-@functools.lru_cache(maxsize=64)
-def _view_lookup(view: tuple[float, ...], size: int, resolution: int, half_side: float, flip_axis: Optional[int],
-                 device: str) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Where each sample of the N^3 grid (mirrored across ``flip_axis`` when not None) projects in
-    the S x S image of ``view`` (an NMR view index, or (view, elevation): ``view_cameras``):
-    ``grid_sample`` coordinates (1, 1, N^3, 2), the camera's ``pixel_angle`` (1,) (a pixel's
-    world size per unit of depth) and each sample's depth (N^3,).
-    The same for every image from that view, so it is computed once: projecting the grid for each
-    image was most of an evaluation's prediction time."""
-    axis = torch.linspace(-half_side, half_side, resolution, dtype=torch.float32, device=device)
-    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    if flip_axis is not None:
-        flip = torch.ones(3, device=device)
-        flip[flip_axis] = -1.0
-        points = points * flip
-    cams = view_cameras(torch.tensor([view] if len(view) == 2 else view, dtype=torch.float64), size)
-    cams = cams.to(device, torch.float32)
-    pix, depth = cams.project(points)
-    grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
-    return grid, cams.pixel_angle, depth[0]
-
-
-def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: int, half_side: float,
-                        mirror_axis: Optional[int] = None, threshold: float = 0.5) -> torch.Tensor:
-    """An SDF-like field (world units, positive outside) of the cone of rays through the input
-    view's silhouette, sampled on the N^3 grid over ``[-half_side, half_side]^3``
-    (renderer.SDFGrid layout): the pixel distance to the silhouette at each sample's projection,
-    scaled by the pixel's size at the sample's depth. With ``mirror_axis`` the field of the sample's
-    mirror image is taken too (the larger of the two: the intersection of the two cones).
-
-    Args:
-        alpha: (B, S, S) the input images' alpha.
-        views: (B,) their NMR view indices, or (B, 2) rows of (view, elevation in degrees)
-            (``svr.nmr.views.view_cameras``).
-    Returns:
-        (B, N, N, N) float32 on ``alpha``'s device.
-    """
-    b, size = alpha.shape[0], alpha.shape[-1]
-    dist = signed_pixel_distance(alpha, threshold)[:, None]  # (B, 1, S, S)
-    v = torch.as_tensor(views).detach().cpu().double()
-    view_list = [tuple(row) for row in (v.reshape(-1, 2) if v.ndim == 2 else v.reshape(-1, 1)).tolist()]
-    if len(view_list) != b:
-        raise ValueError(f"views has {len(view_list)} entries for {b} images")
-    out = torch.empty(b, resolution ** 3, dtype=torch.float32, device=alpha.device)
-    key = (size, int(resolution), float(half_side))
-    for view in sorted(set(view_list)):
-        rows = [i for i, v in enumerate(view_list) if v == view]
-        for flip_axis in (None,) + ((mirror_axis,) if mirror_axis is not None else ()):
-            grid, pixel_per_depth, depth = _view_lookup(view, *key, flip_axis, str(alpha.device))
-            d = F.grid_sample(dist[rows], grid.expand(len(rows), -1, -1, -1), mode="bilinear",
-                              padding_mode="border", align_corners=False)[:, 0, 0] * depth * pixel_per_depth
-            out[rows] = d if flip_axis is None else torch.maximum(out[rows], d)
-    return out.reshape(b, resolution, resolution, resolution)
-
-
-__all__ = ["CARVES", "Calibration", "signed_pixel_distance", "silhouette_cone_sdf"]
+__all__ = ["CARVES", "Calibration"]

@@ -1,4 +1,4 @@
-"""svr.inference.calibration: the silhouette cone's field against hand-computed pixel distances and
+"""svr.inference.calibration and svr.nmr.cones: the silhouette cone's field against hand-computed pixel distances and
 projections, the mirror look, the settings' checks, and predict_sdf applying a checkpoint's
 calibration (the search for a calibration: tests/svr/evaluation/test_calibration_search.py)."""
 from __future__ import annotations
@@ -9,7 +9,8 @@ import pytest
 import torch
 
 import renderer
-from svr.inference.calibration import Calibration, signed_pixel_distance, silhouette_cone_sdf
+from svr.inference.calibration import Calibration
+from svr.nmr.cones import signed_pixel_distance, silhouette_cone_sdf
 from svr.inference.prediction import LoadedModel, predict_sdf
 
 from tests.svr.models.test_models import tiny_net
