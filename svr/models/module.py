@@ -20,7 +20,7 @@ import renderer
 from sdfcommon.tooling.checks import check_instance, check_int
 from svr.data.types import SVRBatch
 from svr.distributed import gather_unique
-from svr.losses import LossTerms, LossWeights, image_loss, total_loss, voxel_loss
+from svr.losses import LossTerms, LossWeights, hull_loss, image_loss, total_loss, voxel_loss
 from svr.models.checkpoint_layout import CHECKPOINT_KEY, check_stage
 from svr.models.network import SVRNet
 from svr.nmr.metrics import iou_direct, iou_table
@@ -161,7 +161,8 @@ class SVRLightningModule(pl.LightningModule):
     # ------------------------------------------------------------------ training
     def compute_loss(self, batch: SVRBatch, sdf: torch.Tensor) -> LossTerms:
         """The stage's loss of predicted grids (B, N, N, N) against the batch's V views (rendered only
-        where an image term has weight) and, where its weight is not 0, its voxels."""
+        where an image term has weight; their visual hull where the hull term has weight) and, where
+        its weight is not 0, its voxels."""
         img = None
         if self.loss_weights.renders(self.scene.wants("shading")):
             img = image_loss(sdf, self.net.half_side, batch.images, batch.views, self.scene, self.render_size,
@@ -175,7 +176,10 @@ class SVRLightningModule(pl.LightningModule):
                 }
         vox = (voxel_loss(sdf, self.net.half_side, batch.voxels, self.loss_weights.voxel_kind)
                if self.loss_weights.voxel > 0 else None)
-        return total_loss(img, sdf, self.net.voxel_size, self.loss_weights, vox)
+        w = self.loss_weights
+        hull = (hull_loss(sdf, self.net.half_side, batch.images[:, :, 3], batch.views, w.hull_margin, w.hull_tolerance)
+                if w.hull > 0 else None)
+        return total_loss(img, sdf, self.net.voxel_size, self.loss_weights, vox, hull)
 
     def _trainable(self) -> list[torch.nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]

@@ -8,8 +8,8 @@ import torch
 import renderer
 import math
 
-from svr.losses import (LossWeights, image_loss, resize_images, silhouette_loss, shading_loss, total_loss,
-                        voxel_distances, voxel_loss)
+from svr.losses import (LossWeights, hull_loss, image_loss, resize_images, silhouette_loss, shading_loss,
+                        total_loss, voxel_distances, voxel_loss)
 from svr.nmr.views import render_views
 from svr.nmr.metrics import iou_direct
 from svr.nmr.voxels import nmr_voxel_centres
@@ -88,6 +88,84 @@ def test_total_loss_weights_the_terms():
     expected = 2.0 * img.silhouette + 0.5 * img.shading + 0.1 * terms.eikonal + 0.3 * terms.laplacian
     assert terms.total.item() == pytest.approx(expected.item())
     assert set(terms.as_dict()) == {"total", "silhouette", "shading", "eikonal", "laplacian"}
+
+
+def _own_silhouettes(sdf: torch.Tensor, views: torch.Tensor, size: int = 64) -> torch.Tensor:
+    sil, _ = render_views(sdf, 0.6, views, renderer.Scene(effects=("silhouette",)), size)
+    return sil.detach()
+
+
+def test_hull_loss_of_the_shape_itself_is_near_zero_and_grows_with_overfill():
+    """A sphere inside its own views' visual hull costs (almost) nothing: the cone's field bounds an
+    SDF from below; a sphere fatter than those silhouettes costs about the excess depth, beyond the
+    tolerance."""
+    sdf = _sphere(n=32, r=0.3, batch=1)
+    voxel = 1.2 / 31
+    views = torch.tensor([[0, 6, 12, 18]])
+    alpha = _own_silhouettes(sdf, views)
+    own = hull_loss(sdf, 0.6, alpha, views, tolerance=0.0, stride=1).item()
+    fat = [hull_loss(sdf - d * voxel, 0.6, alpha, views, tolerance=0.0, stride=1).item() for d in (1, 2)]
+    assert own < 0.01  # pixel-sized errors of the cone at the outline only
+    assert fat[0] > 5 * max(own, 1e-4) and fat[1] > 1.5 * fat[0]
+    # With the default tolerance of a voxel, a voxel too fat is forgiven, three are not.
+    assert hull_loss(sdf - voxel, 0.6, alpha, views, stride=1).item() < 0.01
+    assert hull_loss(sdf - 3 * voxel, 0.6, alpha, views, stride=1).item() > 0.1
+
+
+def test_hull_loss_hand_computed_and_its_gradient():
+    """A constant field c against one view whose silhouette is empty: the hull is everywhere farther
+    than the margin (the clamp), so the loss is (margin - tolerance - c / voxel) and each sample's
+    gradient is -1 / (samples x voxel)."""
+    n, half = 9, 0.5
+    voxel = 2 * half / (n - 1)
+    c = 0.5 * voxel
+    sdf = torch.full((1, n, n, n), c, dtype=torch.float32, requires_grad=True)
+    alpha = torch.zeros(1, 1, 16, 16)
+    loss = hull_loss(sdf, half, alpha, torch.tensor([[0]]), margin=2.0, tolerance=0.25, stride=1)
+    assert loss.item() == pytest.approx(2.0 - 0.25 - 0.5, rel=1e-5)
+    loss.backward()
+    assert torch.allclose(sdf.grad, torch.full_like(sdf, -1.0 / (n ** 3 * voxel)))
+    # stride 2 reads every other sample: the rest get no gradient
+    sdf.grad = None
+    hull_loss(sdf, half, alpha, torch.tensor([[0]]), margin=2.0, tolerance=0.25, stride=2).backward()
+    assert bool((sdf.grad[:, ::2, ::2, ::2] < 0).all()) and float(sdf.grad[:, 1::2].abs().sum()) == 0.0
+
+
+def test_hull_loss_thins_a_shape_too_deep_for_its_side_view():
+    """A box stretched along z (the depth of view 0) seen by views 0 and 6 (from the side): gradient
+    descent on the hull loss alone lowers its volume where view 6 shows background, and leaves the
+    true box's samples alone."""
+    n = 24
+    true = renderer.SDFGrid.from_function(lambda p: (p.abs() - torch.tensor([0.3, 0.2, 0.1])).amax(-1), n, -0.6, 0.6)
+    deep = renderer.SDFGrid.from_function(lambda p: (p.abs() - torch.tensor([0.3, 0.2, 0.4])).amax(-1), n, -0.6, 0.6)
+    views = torch.tensor([[0, 6]])
+    alpha = _own_silhouettes(true.values.reshape(1, n, n, n), views)
+    x = deep.values.reshape(1, n, n, n).clone().requires_grad_(True)
+    opt = torch.optim.SGD([x], lr=10.0)  # the mean over samples: each gets 1 / (samples x voxel)
+    start = (x < 0).sum().item()
+    for _ in range(30):
+        opt.zero_grad()
+        hull_loss(x, 0.6, alpha, views, stride=1).backward()
+        opt.step()
+    inside_true = true.values.reshape(1, n, n, n) < -0.05
+    assert (x < 0).sum().item() < 0.6 * start
+    assert bool((x.detach()[inside_true] < 0).all())
+
+
+def test_total_loss_adds_the_weighted_hull_term():
+    sdf = _sphere(batch=1)
+    views = torch.tensor([[0, 6]])
+    alpha = _own_silhouettes(_sphere(r=0.2, batch=1), views)
+    images = torch.zeros(1, 2, 4, 64, 64)
+    images[:, :, 3] = alpha
+    img = image_loss(sdf, 0.6, images, views, renderer.Scene(effects=("silhouette",)), 32)
+    hull = hull_loss(sdf, 0.6, alpha, views)
+    w = LossWeights(hull=0.5, eikonal=0.0, laplacian=0.0)
+    terms = total_loss(img, sdf, 1.2 / 31, w, hull=hull)
+    assert terms.total.item() == pytest.approx((img.silhouette + 0.5 * hull).item())
+    assert "hull" in terms.as_dict() and hull.item() > 0
+    with pytest.raises(ValueError, match="hull"):
+        total_loss(img, sdf, 1.2 / 31, w)
 
 
 def test_voxel_loss_hand_computed():
@@ -205,3 +283,11 @@ def test_bad_input_names_the_argument():
         voxel_loss(_sphere(batch=1), 0.6, torch.zeros(1, 4, 4, 4, dtype=torch.bool), "l2")
     with pytest.raises(ValueError, match="voxel_kind"):
         LossWeights(voxel_kind="l2")
+    with pytest.raises(ValueError, match="hull_margin"):
+        LossWeights(hull_margin=0.0)
+    with pytest.raises(ValueError, match="hull_tolerance"):
+        LossWeights(hull_tolerance=-1.0)
+    with pytest.raises(ValueError, match="alpha"):
+        hull_loss(_sphere(batch=1), 0.6, torch.zeros(1, 64, 64), torch.tensor([[0]]))
+    with pytest.raises(ValueError, match="view_ids"):
+        hull_loss(_sphere(batch=1), 0.6, torch.zeros(1, 2, 64, 64), torch.tensor([[0]]))

@@ -253,6 +253,32 @@ def test_voxel_supervised_stage_learns_without_rendering(monkeypatch):
     assert losses[-1] < 0.9 * losses[0]  # measured: 0.493 -> 0.221 (kind iou: a box, from the sphere template)
 
 
+def test_hull_term_is_in_the_stage_loss_and_falls_when_trained_on():
+    """loss.weights.hull > 0: compute_loss adds the supervised views' hull term (weighted), and a few
+    steps on it alone (the silhouette weight near 0) lower it."""
+    from svr.losses import LossWeights, hull_loss
+
+    torch.manual_seed(0)
+    weights = LossWeights(silhouette=1e-6, shading=0.0, hull=1.0, hull_tolerance=0.0, eikonal=0.0, laplacian=0.0)
+    module = SVRLightningModule(tiny_net(), stage="coarse", render_size=16, loss_weights=weights)
+    batch = fake_batch()
+    batch.images[:, :, 3] = 0.0
+    batch.images[:, :, 3, 28:36, 28:36] = 1.0  # a small square: the initial sphere is far outside its hull
+    opt = torch.optim.Adam([p for p in module.parameters() if p.requires_grad], lr=1e-2)
+    losses = []
+    for _ in range(15):
+        sdf = module(batch.images[:, 0])
+        terms = module.compute_loss(batch, sdf)
+        expected = hull_loss(sdf, module.net.half_side, batch.images[:, :, 3], batch.view_ids, 2.0, 0.0)
+        assert terms.hull.item() == pytest.approx(expected.item(), rel=1e-5)
+        assert terms.total.item() == pytest.approx((terms.hull + 1e-6 * terms.silhouette).item(), rel=1e-4)
+        opt.zero_grad()
+        terms.total.backward()
+        opt.step()
+        losses.append(terms.hull.item())
+    assert losses[-1] < 0.7 * losses[0]  # measured: 0.235 -> 0.0
+
+
 def test_checkpoint_round_trip_and_bad_files(tmp_path):
     import pytorch_lightning as pl
 
