@@ -2,38 +2,20 @@
 network's grid. A shape seen with that silhouette lies inside its cone, so the cone's field bounds
 the shape's signed distance from below (``sdf >= cone`` at every point). The calibration carves
 predictions with the input view's cone (``svr.inference.calibration``); the hull loss holds
-training predictions inside the cones of their supervised views (``svr.losses.hull_loss``)."""
+training predictions inside the cones of their supervised views (``svr.losses.hull_loss``). The
+pixel distances come from ``sdfcommon.numerics.hull``, which builds the same field for any cameras
+(the multi-view fit's visual hull)."""
 from __future__ import annotations
 
 import functools
 from typing import Optional
 
-import numpy as np
 import torch
-from scipy import ndimage
 from torch.nn import functional as F
 
+from sdfcommon.numerics.hull import signed_pixel_distance
 from sdfcommon.tooling.checks import check_int
 from svr.nmr.views import view_cameras
-
-
-def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
-    """(B, H, W) alpha -> (B, H, W) signed distance (pixels) from each pixel centre to the
-    silhouette's edge, taken half a pixel outside the silhouette's outer pixel centres: positive
-    outside (alpha < threshold), negative inside."""
-    masks = (alpha.detach().cpu().numpy() >= threshold)
-    out = np.empty(masks.shape, np.float32)
-    for i, inside in enumerate(masks):
-        if not inside.any():
-            out[i] = 1e6  # no silhouette: everything is outside
-            continue
-        if inside.all():
-            out[i] = -1e6
-            continue
-        outside_d = ndimage.distance_transform_edt(~inside)  # to the nearest silhouette pixel
-        inside_d = ndimage.distance_transform_edt(inside)   # to the nearest background pixel
-        out[i] = np.where(inside, 0.5 - inside_d, outside_d - 0.5)
-    return torch.from_numpy(out).to(alpha.device)
 
 
 @functools.lru_cache(maxsize=128)
@@ -95,4 +77,4 @@ def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: in
     return out.reshape(b, n, n, n)
 
 
-__all__ = ["signed_pixel_distance", "silhouette_cone_sdf"]
+__all__ = ["silhouette_cone_sdf"]

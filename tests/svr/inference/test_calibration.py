@@ -10,7 +10,8 @@ import torch
 
 import renderer
 from svr.inference.calibration import Calibration
-from svr.nmr.cones import signed_pixel_distance, silhouette_cone_sdf
+from sdfcommon.numerics.hull import signed_pixel_distance
+from svr.nmr.cones import silhouette_cone_sdf
 from svr.inference.prediction import LoadedModel, predict_sdf
 
 from tests.svr.models.test_models import tiny_net
@@ -20,19 +21,6 @@ def disc(size: int = 64, radius: float = 10.0) -> torch.Tensor:
     """(size, size) alpha: 1 within ``radius`` pixels of the image centre, else 0."""
     rc = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
     return ((rc[:, None] ** 2 + rc[None, :] ** 2).sqrt() <= radius).float()
-
-
-def test_signed_pixel_distance_by_hand():
-    alpha = torch.zeros(1, 9, 9)
-    alpha[0, 3:6, 3:6] = 1.0  # a 3x3 square
-    d = signed_pixel_distance(alpha)[0]
-    assert float(d[4, 4]) == pytest.approx(-1.5)   # 2 pixels from the nearest background pixel
-    assert float(d[3, 4]) == pytest.approx(-0.5)   # on the square's edge
-    assert float(d[2, 4]) == pytest.approx(0.5)    # just outside: the edge is half a pixel away
-    assert float(d[0, 4]) == pytest.approx(2.5)
-    assert float(d[0, 0]) == pytest.approx(math.hypot(3, 3) - 0.5)
-    assert bool((signed_pixel_distance(torch.zeros(1, 4, 4)) > 0).all())
-    assert bool((signed_pixel_distance(torch.ones(1, 4, 4)) < 0).all())
 
 
 def test_cone_field_sign_and_scale_follow_the_projection():
