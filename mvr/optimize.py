@@ -18,6 +18,7 @@ from tqdm.auto import tqdm
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
 
+from sdfcommon.numerics.hull import signed_pixel_distance, visual_hull
 from sdfcommon.numerics.regularisers import band_regularisers
 from sdfcommon.tooling.checks import check_float, check_int, check_positive
 
@@ -48,6 +49,10 @@ class OptimSettings:
         shuffle_views: visit the views in a new random order each pass (else in rig order).
         fill_cavities: after each pass, close pockets of positive SDF enclosed by the shape (see
             ``fill_cavities``; not in the paper).
+        carve: after each pass, raise the values to the target silhouettes' visual hull less
+            ``carve_tolerance`` voxels (``ViewLosses.carve``): whatever the fit grew outside the
+            cones of the views' silhouettes goes (not in the paper; docs/mvr_method.md).
+        carve_tolerance: how far (voxels of the level) the shape may reach outside the hull.
         cameras: refine each camera's pose (a turn about its eye and a shift, ``CameraPoses``) with
             the shape, by the render's camera gradient (not in the paper; for inexact cameras).
         camera_lr: Adam's step for the poses (radians for the turn, world units for the shift).
@@ -74,14 +79,18 @@ class OptimSettings:
     max_seconds: PerLevel = None
     shuffle_views: bool = True
     fill_cavities: bool = True
+    carve: bool = True
+    carve_tolerance: float = 1.0
     cameras: bool = False
     camera_lr: float = 0.01
     camera_levels: int = 1
 
     def __post_init__(self) -> None:
         check_positive(self.lr, "lr")
-        if not isinstance(self.cameras, bool):
-            raise TypeError(f"cameras must be true or false, got {self.cameras!r}")
+        for name in ("cameras", "carve", "fill_cavities", "shuffle_views"):
+            if not isinstance(getattr(self, name), bool):
+                raise TypeError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        check_float(self.carve_tolerance, "carve_tolerance", minimum=0)
         check_positive(self.camera_lr, "camera_lr")
         check_int(self.camera_levels, "camera_levels", minimum=1)
         if not 0 < self.lr_decay <= 1:
@@ -280,6 +289,7 @@ class ViewLosses:
         self.cameras, self.images, self.masks = cameras, images, masks.float()
         self.scene, self.trace, self.backend, self.settings = scene, trace, backend, settings
         self.poses = poses
+        self._pixel_distance: Optional[torch.Tensor] = None
 
     def cameras_of(self, views: torch.Tensor) -> Cameras:
         """The cameras of ``views`` (K,) long, with the poses' corrections where there are any."""
@@ -302,6 +312,19 @@ class ViewLosses:
         parts = [self.data_loss(grid, torch.arange(i, min(i + chunk, self.cameras.batch_size)))
                  for i in range(0, self.cameras.batch_size, chunk)]
         return tuple(torch.cat([p[k] for p in parts]) for k in range(3))  # type: ignore[return-value]
+
+    @torch.no_grad()
+    def carve(self, values: torch.Tensor, lo: torch.Tensor, hi: torch.Tensor, tolerance: float) -> torch.Tensor:
+        """``values`` (N, N, N) of a grid over ``[lo, hi]`` raised to at least the visual hull of the
+        target silhouettes (``sdfcommon.numerics.hull``) less ``tolerance`` (world units), seen from
+        the cameras as now believed: a new tensor; what lies outside a view's silhouette cone by more
+        than the tolerance is outside the shape."""
+        if self._pixel_distance is None:  # the targets are fixed for the level
+            self._pixel_distance = signed_pixel_distance(self.masks)
+        cams = self.cameras_of(torch.arange(self.cameras.batch_size)).detach()
+        points = SDFGrid(values.detach()[None], lo, hi).points().reshape(-1, 3)
+        bound = visual_hull(self._pixel_distance, cams, points).reshape(values.shape) - tolerance
+        return torch.maximum(values.detach(), bound.to(values.dtype))
 
     def regulariser(self, grid: SDFGrid) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Weighted eikonal + Laplacian terms, and the two unweighted terms: the shared regularisers
@@ -422,7 +445,7 @@ def _run_passes(fit: _Fitting, losses: ViewLosses, level: int, seed: int, progre
             order = torch.randperm(n_views, generator=gen) if settings.shuffle_views else torch.arange(n_views)
             pass_updates, timed_out = _update_views(fit, losses, view_loss, order, t_start, max_seconds)
             updates += pass_updates
-            step = _end_pass(fit, settings, before)
+            step = _end_pass(fit, losses, before)
             if losses.poses is not None:
                 losses.poses.decay(settings.lr_decay)
             view_loss, img_v, sil_v = losses.all_views(fit.detached())
@@ -489,12 +512,16 @@ def _update_view(fit: _Fitting, losses: ViewLosses, view: int, hard: bool, mean:
     return made
 
 
-def _end_pass(fit: _Fitting, settings: OptimSettings, before: torch.Tensor) -> float:
-    """After a pass: the learning rate decays and cavities are filled (where the settings say);
-    returns the largest change of a value since ``before`` (the values at the pass's start), in
-    voxels."""
+def _end_pass(fit: _Fitting, losses: ViewLosses, before: torch.Tensor) -> float:
+    """After a pass: the learning rate decays, the grid is carved by the visual hull and cavities
+    are filled (where the settings say); returns the largest change of a value since ``before`` (the
+    values at the pass's start), in voxels."""
+    settings = losses.settings
     for group in fit.opt.param_groups:
         group["lr"] *= settings.lr_decay
+    if settings.carve:
+        with torch.no_grad():
+            fit.values.copy_(losses.carve(fit.values[0], fit.lo, fit.hi, settings.carve_tolerance * fit.voxel)[None])
     if settings.fill_cavities:
         with torch.no_grad():
             fit.values.copy_(fill_cavities(fit.values[0]).unsqueeze(0))

@@ -89,3 +89,37 @@ def test_camera_poses_move_only_the_rendered_cameras_and_keep_no_common_motion()
         OptimSettings(cameras=True, camera_levels=0)
     with pytest.raises(TypeError, match="cameras must be true or false"):
         OptimSettings(cameras="yes")
+
+
+def test_carving_removes_what_lies_outside_the_visual_hull():
+    """A blob beside the target sphere, outside every view's silhouette cone, is cut away by the
+    visual hull while the sphere's inside is kept; with ``carve`` the level's passes do the same,
+    without it the blob survives a pass that can barely move the grid."""
+    scene = default_scene()
+    cams = RigSettings().cameras(48)  # a pixel ~0.07 at the sphere: half of it within the tolerance
+    views = make_target("sphere", extent=1.0, mesh_resolution=48).render(cams, scene)
+
+    def losses(settings: OptimSettings) -> ViewLosses:
+        return ViewLosses(cams, views.images, views.masks, scene, TraceSettings(), "auto", settings)
+
+    sphere_and_blob = SDFGrid.from_function(
+        lambda p: torch.minimum(p.norm(dim=-1) - 0.5, (p - torch.tensor([0.85, 0.0, 0.0])).norm(dim=-1) - 0.12),
+        32, -1.0, 1.0)
+    points = sphere_and_blob.points()
+    blob = (points - torch.tensor([0.85, 0.0, 0.0])).norm(dim=-1) < 0.1
+    core = points.norm(dim=-1) < 0.35
+    assert bool((sphere_and_blob.values[0][blob] < 0).all())
+    tolerance = 2.0 / 31
+    carved = losses(OptimSettings()).carve(sphere_and_blob.values[0], sphere_and_blob.bbox_min,
+                                           sphere_and_blob.bbox_max, tolerance)
+    assert bool((carved[blob] > 0).all())
+    assert torch.equal(carved[core], sphere_and_blob.values[0][core])
+    assert bool((carved >= sphere_and_blob.values[0]).all())  # carving only raises values
+    with pytest.raises(TypeError, match="carve must be true or false"):
+        OptimSettings(carve=1)
+    with pytest.raises(ValueError, match="carve_tolerance"):
+        OptimSettings(carve_tolerance=-1.0)
+    for carve, blob_left in ((True, False), (False, True)):
+        settings = OptimSettings(max_passes=1, lr=1e-4, carve=carve, **FEW)
+        fitted, _ = optimise_level(sphere_and_blob, losses(settings), progress=False)
+        assert bool((fitted.values[0][blob] < 0).any()) == blob_left
