@@ -58,6 +58,21 @@ def _check_mesh(mesh: trimesh.Trimesh, name: str) -> None:
         raise ValueError(f"{name} has no surface (no triangles or zero area)")
 
 
+def faces_around_vertices(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(V, largest degree) the faces each vertex belongs to, padded with -1 (trimesh's
+    ``vertex_faces``, which on a mesh with degenerate faces (a vertex twice in one face) logs a
+    traceback before falling back to a slow loop; here such a face is listed twice)."""
+    v = np.asarray(faces, dtype=np.int64).ravel()
+    f = np.repeat(np.arange(len(faces)), faces.shape[1] if len(faces) else 3)
+    order = np.argsort(v, kind="stable")
+    v, f = v[order], f[order]
+    counts = np.bincount(v, minlength=n_vertices)
+    out = np.full((n_vertices, max(int(counts.max(initial=0)), 1)), -1, dtype=np.int64)
+    starts = np.cumsum(counts) - counts
+    out[v, np.arange(len(v)) - starts[v]] = f
+    return out
+
+
 def one_sided_distances(points: np.ndarray, mesh: trimesh.Trimesh, nearest_centres: int = 8,
                         nearest_vertices: int = 2, chunk: int = 10_000) -> np.ndarray:
     """Distances from points to a mesh (see the module docstring).
@@ -77,7 +92,7 @@ def one_sided_distances(points: np.ndarray, mesh: trimesh.Trimesh, nearest_centr
     k_v = int(min(nearest_vertices, len(mesh.vertices)))
     centres = cKDTree(triangles.mean(axis=1))
     vertices = cKDTree(np.asarray(mesh.vertices, dtype=np.float64))
-    around = np.asarray(mesh.vertex_faces)  # (V, max degree), padded with -1
+    around = faces_around_vertices(np.asarray(mesh.faces), len(mesh.vertices))
     around = np.where(around < 0, around[:, :1], around)
     out = np.empty(len(pts))
     for start in range(0, len(pts), chunk):

@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 from mvr import surface_distances
+from mvr.metrics import faces_around_vertices
 
 
 def _sphere(radius: float, centre=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
@@ -58,3 +59,14 @@ def test_bad_input():
         surface_distances("mesh.obj", _sphere(0.5))
     with pytest.raises(ValueError, match="samples"):
         surface_distances(_sphere(0.5), _sphere(0.5), samples=0)
+
+
+def test_faces_around_vertices_match_trimesh_and_take_degenerate_faces():
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    mine = faces_around_vertices(sphere.faces, len(sphere.vertices))
+    theirs = np.asarray(sphere.vertex_faces)
+    assert mine.shape == theirs.shape
+    assert all(sorted(a[a >= 0]) == sorted(b[b >= 0]) for a, b in zip(mine, theirs))
+    # a face naming vertex 1 twice, and a vertex in no face
+    around = faces_around_vertices(np.array([[0, 1, 2], [2, 1, 1]]), 4)
+    assert around.tolist() == [[0, -1, -1], [0, 1, 1], [0, 1, -1], [-1, -1, -1]]
