@@ -7,10 +7,17 @@ sums differ from them by constant factors that the weights absorb.
 from __future__ import annotations
 
 import torch
+from torch.nn import functional as F
 
 
-def view_image_losses(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """The paper's L2 image loss of each view, as a mean over its pixels and channels.
+IMAGE_LOSSES = ("l2", "l1")
+
+
+def view_image_losses(rendered: torch.Tensor, target: torch.Tensor, kind: str = "l2", levels: int = 1) -> torch.Tensor:
+    """Each view's image loss, as a mean over its pixels and channels: the paper's L2 (``kind="l2"``)
+    or L1 (the authors' code's); with ``levels`` > 1 the mean of the loss over an image pyramid (the
+    images and their 2x2, 4x4, ... box means), which compares blurred images too, so that an error
+    also pulls on surface a few pixels away.
 
     Args:
         rendered, target: (V, H, W, C) float images (the same shape).
@@ -20,7 +27,18 @@ def view_image_losses(rendered: torch.Tensor, target: torch.Tensor) -> torch.Ten
     if rendered.shape != target.shape or rendered.ndim != 4:
         raise ValueError(f"rendered {tuple(rendered.shape)} and target {tuple(target.shape)} must both be "
                          f"(V, H, W, C)")
-    return ((rendered - target.to(rendered.dtype)) ** 2).mean(dim=(1, 2, 3))
+    if kind not in IMAGE_LOSSES:
+        raise ValueError(f"image loss must be one of {IMAGE_LOSSES}, got {kind!r}")
+    diff = (rendered - target.to(rendered.dtype)).permute(0, 3, 1, 2)  # (V, C, H, W)
+    total = diff.new_zeros(diff.shape[0])
+    for level in range(levels):
+        if level > 0:
+            if min(diff.shape[-2:]) < 2:
+                raise ValueError(f"{levels} pyramid levels need images of at least {2 ** (levels - 1)} pixels, "
+                                 f"got {tuple(rendered.shape[1:3])}")
+            diff = F.avg_pool2d(diff, 2, ceil_mode=True)
+        total = total + (diff.abs() if kind == "l1" else diff.square()).mean(dim=(1, 2, 3))
+    return total / levels
 
 
 def view_silhouette_losses(silhouette: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -22,7 +22,7 @@ from sdfcommon.numerics.hull import signed_pixel_distance, visual_hull
 from sdfcommon.numerics.regularisers import band_regularisers
 from sdfcommon.tooling.checks import check_float, check_int, check_positive
 
-from .losses import view_image_losses, view_silhouette_losses
+from .losses import IMAGE_LOSSES, view_image_losses, view_silhouette_losses
 
 PerLevel = Union[int, float, None, Sequence[Union[int, float, None]]]
 
@@ -37,6 +37,8 @@ class OptimSettings:
         betas, eps: Adam's other parameters.
         image_weight, silhouette_weight, eikonal_weight, laplacian_weight: weights of the energy's
             terms (see mvr.losses); the silhouette and Laplacian terms are off in the paper.
+        image_loss: "l1" (the authors' code's) or "l2" (the paper's) image loss.
+        image_levels: levels of the image pyramid the image loss averages over (1: the images alone).
         hard_view_updates: updates at most for a view above the mean loss (paper: 20).
         easy_view_updates: updates for the other views (paper: 5).
         max_passes: passes per level at most (an int, or one per level).
@@ -68,6 +70,8 @@ class OptimSettings:
     silhouette_weight: float = 1.0
     eikonal_weight: float = 0.01
     laplacian_weight: float = 0.01
+    image_loss: str = "l1"
+    image_levels: int = 1
     hard_view_updates: int = 20
     easy_view_updates: int = 5
     max_passes: PerLevel = 10
@@ -91,6 +95,9 @@ class OptimSettings:
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be true or false, got {getattr(self, name)!r}")
         check_float(self.carve_tolerance, "carve_tolerance", minimum=0)
+        if self.image_loss not in IMAGE_LOSSES:
+            raise ValueError(f"image_loss must be one of {', '.join(IMAGE_LOSSES)}, got {self.image_loss!r}")
+        check_int(self.image_levels, "image_levels", minimum=1)
         check_positive(self.camera_lr, "camera_lr")
         check_int(self.camera_levels, "camera_levels", minimum=1)
         if not 0 < self.lr_decay <= 1:
@@ -299,7 +306,7 @@ class ViewLosses:
         """Weighted image + silhouette loss of each of ``views`` (K,) long: (K,) total, image, silhouette."""
         out = render(grid, self.cameras_of(views), self.scene, self.trace, self.backend)
         s = self.settings
-        img = view_image_losses(out.image, self.images[views])
+        img = view_image_losses(out.image, self.images[views], s.image_loss, s.image_levels)
         if s.silhouette_weight > 0:
             sil = view_silhouette_losses(out.silhouette, self.masks[views])
         else:

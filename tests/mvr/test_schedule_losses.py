@@ -58,6 +58,29 @@ def test_losses():
         view_silhouette_losses(a, b)
 
 
+def test_l1_and_pyramid_image_losses_by_hand():
+    """L1 against L2 on a uniform error; a pyramid level averages 2x2 blocks first: a checkerboard
+    of +-1 errors costs 1 at full size and 0 once averaged, so two levels give 1/2, three 1/3."""
+    a = torch.zeros(2, 4, 4, 1)
+    b = torch.full((2, 4, 4, 1), 0.5)
+    assert torch.allclose(view_image_losses(a, b, "l1"), torch.tensor([0.5, 0.5]))
+    assert torch.allclose(view_image_losses(a, b, "l2", levels=3), torch.tensor([0.25, 0.25]))
+    board = (torch.arange(4)[:, None] + torch.arange(4)[None, :]) % 2 * 2.0 - 1.0  # +-1
+    checker = board[None, :, :, None].expand(1, 4, 4, 1)
+    zero = torch.zeros(1, 4, 4, 1)
+    assert float(view_image_losses(checker, zero, "l1")) == pytest.approx(1.0)
+    assert float(view_image_losses(checker, zero, "l1", levels=2)) == pytest.approx(0.5)
+    assert float(view_image_losses(checker, zero, "l2", levels=3)) == pytest.approx(1 / 3)
+    with pytest.raises(ValueError, match="one of"):
+        view_image_losses(a, b, "huber")
+    with pytest.raises(ValueError, match="pyramid levels"):
+        view_image_losses(a, b, "l1", levels=4)
+    with pytest.raises(ValueError, match="image_loss"):
+        OptimSettings(image_loss="l3")
+    with pytest.raises(ValueError, match="image_levels"):
+        OptimSettings(image_levels=0)
+
+
 def test_fill_cavities():
     grid = SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.7, 24)
     values = grid.values[0].clone()
