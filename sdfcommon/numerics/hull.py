@@ -33,14 +33,38 @@ def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.
     return torch.from_numpy(out).to(alpha.device)
 
 
-def visual_hull(pixel_distance: torch.Tensor, cameras: Cameras, points: torch.Tensor, chunk: int = 8) -> torch.Tensor:
-    """The visual hull of V silhouettes as a field (world units, positive outside) at ``points``.
+def project_to_images(cameras: Cameras, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Where points fall in each camera's image, for ``cone_distances``: ``grid_sample``
+    coordinates (B, 1, P, 2) (align_corners=False), each point's depth along the camera's axis
+    (B, P; negative behind it) and the cameras' ``pixel_angle`` (B, 1) (a pixel's width per unit of
+    depth); float32 on ``points``' device.
 
-    Each view contributes the signed pixel distance (``signed_pixel_distance``) at the point's
-    projection, times the width of a pixel at the point's depth: about the point's distance to that
-    view's cone, exact in sign. The hull's field is the largest over the views (a point outside one
-    cone is outside the hull). A point that projects outside an image takes the distance at the
-    image's border; a view says nothing of a point behind its camera.
+    Args:
+        cameras: (B,) cameras. points: (P, 3) world points.
+    """
+    h, w = cameras.image_size
+    pix, depth = cameras.project(points)
+    scale = torch.tensor([2.0 / w, 2.0 / h], device=points.device)
+    grid = ((pix.float().to(points.device) + 0.5) * scale - 1.0).unsqueeze(1)
+    return grid, depth.float().to(points.device), cameras.pixel_angle.float().to(points.device)[:, None]
+
+
+def cone_distances(pixel_distance: torch.Tensor, grid: torch.Tensor, depth: torch.Tensor,
+                   pixel_angle: torch.Tensor) -> torch.Tensor:
+    """(B, P) each point's field of each view's silhouette cone: the signed pixel distance
+    (``signed_pixel_distance``, (B, H, W)) at its projection (``project_to_images``: ``grid``
+    (B, 1, P, 2), ``depth`` (B, P), ``pixel_angle`` (B, 1)), times the pixel's width at its depth;
+    about the distance to the cone, exact in sign. A point that projects outside the image takes
+    the distance at the image's border; a view says nothing of a point behind its camera
+    (``-inf``)."""
+    d = F.grid_sample(pixel_distance[:, None].float().to(grid.device), grid, mode="bilinear",
+                      padding_mode="border", align_corners=False)[:, 0, 0]
+    return torch.where(depth > 0, d * depth * pixel_angle, torch.full_like(d, -float("inf")))
+
+
+def visual_hull(pixel_distance: torch.Tensor, cameras: Cameras, points: torch.Tensor, chunk: int = 8) -> torch.Tensor:
+    """The visual hull of V silhouettes as a field (world units, positive outside) at ``points``:
+    the largest of the views' ``cone_distances`` (a point outside one cone is outside the hull).
 
     Args:
         pixel_distance: (V, H, W) signed pixel distances of the views' silhouettes.
@@ -56,18 +80,11 @@ def visual_hull(pixel_distance: torch.Tensor, cameras: Cameras, points: torch.Te
                          f"{tuple(cameras.image_size)}")
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points must be (P, 3), got {tuple(points.shape)}")
-    scale = torch.tensor([2.0 / w, 2.0 / h], device=points.device)
     field = torch.full((points.shape[0],), -float("inf"), device=points.device)
     for start in range(0, v, chunk):
-        cams = cameras[start:start + chunk]
-        pix, depth = cams.project(points)
-        grid = ((pix.float() + 0.5) * scale - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
-        d = F.grid_sample(pixel_distance[start:start + chunk, None].float().to(points.device), grid, mode="bilinear",
-                          padding_mode="border", align_corners=False)[:, 0, 0]
-        width = depth.float().clamp_min(0.0) * cams.pixel_angle.float().to(points.device)[:, None]
-        d = torch.where(depth > 0, d * width, torch.full_like(d, -float("inf")))
-        field = torch.maximum(field, d.amax(0))
+        lookup = project_to_images(cameras[start:start + chunk], points)
+        field = torch.maximum(field, cone_distances(pixel_distance[start:start + chunk], *lookup).amax(0))
     return field
 
 
-__all__ = ["signed_pixel_distance", "visual_hull"]
+__all__ = ["cone_distances", "project_to_images", "signed_pixel_distance", "visual_hull"]

@@ -11,9 +11,8 @@ import functools
 from typing import Optional
 
 import torch
-from torch.nn import functional as F
 
-from sdfcommon.numerics.hull import signed_pixel_distance
+from sdfcommon.numerics.hull import cone_distances, project_to_images, signed_pixel_distance
 from sdfcommon.tooling.checks import check_int
 from svr.nmr.views import view_cameras
 
@@ -23,10 +22,10 @@ def _view_lookup(view: tuple[float, ...], size: int, resolution: int, half_side:
                  device: str, stride: int = 1) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where each sample of the N^3 grid (every ``stride``-th along each axis; mirrored across
     ``flip_axis`` when not None) projects in the S x S image of ``view`` (an NMR view index, or
-    (view, elevation): ``view_cameras``): ``grid_sample`` coordinates (1, 1, M, 2), the camera's
-    ``pixel_angle`` (1,) (a pixel's world size per unit of depth) and each sample's depth (M,).
-    The same for every image from that view, so it is computed once: projecting the grid for each
-    image was most of an evaluation's prediction time."""
+    (view, elevation): ``view_cameras``): ``project_to_images``'s ``grid_sample`` coordinates
+    (1, 1, M, 2), the samples' depths (1, M) and the camera's pixel angle (1, 1). The same for every
+    image from that view, so it is computed once: projecting the grid for each image was most of an
+    evaluation's prediction time."""
     axis = torch.linspace(-half_side, half_side, resolution, dtype=torch.float32, device=device)[::stride]
     points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     if flip_axis is not None:
@@ -34,10 +33,7 @@ def _view_lookup(view: tuple[float, ...], size: int, resolution: int, half_side:
         flip[flip_axis] = -1.0
         points = points * flip
     cams = view_cameras(torch.tensor([view] if len(view) == 2 else view, dtype=torch.float64), size)
-    cams = cams.to(device, torch.float32)
-    pix, depth = cams.project(points)
-    grid = ((pix + 0.5) * (2.0 / size) - 1.0).unsqueeze(1)  # grid_sample's align_corners=False
-    return grid, cams.pixel_angle, depth[0]
+    return project_to_images(cams.to(device, torch.float32), points)
 
 
 def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: int, half_side: float,
@@ -59,7 +55,7 @@ def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: in
     """
     check_int(stride, "stride", minimum=1)
     b, size = alpha.shape[0], alpha.shape[-1]
-    dist = signed_pixel_distance(alpha, threshold)[:, None]  # (B, 1, S, S)
+    dist = signed_pixel_distance(alpha, threshold)  # (B, S, S)
     v = torch.as_tensor(views).detach().cpu().double()
     view_list = [tuple(row) for row in (v.reshape(-1, 2) if v.ndim == 2 else v.reshape(-1, 1)).tolist()]
     if len(view_list) != b:
@@ -70,9 +66,9 @@ def silhouette_cone_sdf(alpha: torch.Tensor, views: torch.Tensor, resolution: in
     for view in sorted(set(view_list)):
         rows = [i for i, v in enumerate(view_list) if v == view]
         for flip_axis in (None,) + ((mirror_axis,) if mirror_axis is not None else ()):
-            grid, pixel_per_depth, depth = _view_lookup(view, *key, flip_axis, str(alpha.device), stride)
-            d = F.grid_sample(dist[rows], grid.expand(len(rows), -1, -1, -1), mode="bilinear",
-                              padding_mode="border", align_corners=False)[:, 0, 0] * depth * pixel_per_depth
+            grid, depth, pixel_angle = _view_lookup(view, *key, flip_axis, str(alpha.device), stride)
+            k = len(rows)
+            d = cone_distances(dist[rows], grid.expand(k, -1, -1, -1), depth.expand(k, -1), pixel_angle.expand(k, -1))
             out[rows] = d if flip_axis is None else torch.maximum(out[rows], d)
     return out.reshape(b, n, n, n)
 
