@@ -155,9 +155,45 @@ def laplacian_loss(sdf: torch.Tensor, voxel_size: float, mu: Optional[float] = 1
     return _one_term(sdf, voxel_size, mu, _laplacian)
 
 
+def box_face_eikonal_sum(sdf: torch.Tensor, voxel_size: float) -> torch.Tensor:
+    """The eikonal residual ``(1 - |grad f|^2)^2`` summed over the vertices on the grid's box faces
+    (each once), with one-sided differences across the face and central ones along it (one-sided
+    at its edges), as ``renderer.SDFGrid.vertex_gradient`` takes them there. With
+    ``band_regularisers(mu=None)``, which covers the interior, it makes the eikonal term of every
+    vertex: multi-view reconstruction needs the faces (without them the values there drift, and a
+    large shape near them grows pits: docs/mvr.md).
+
+    Args:
+        sdf: (B, N, N, N), N >= 3. voxel_size: the spacing.
+    Returns:
+        scalar tensor (a sum: divide by the vertex count for a mean).
+    """
+    check_grid(sdf)
+    h = float(voxel_size)
+
+    def along(layer: torch.Tensor, dim: int) -> torch.Tensor:
+        return torch.gradient(layer, spacing=(h,), dim=dim, edge_order=1)[0]
+
+    def residual(gx: torch.Tensor, gy: torch.Tensor, gz: torch.Tensor) -> torch.Tensor:
+        return ((1.0 - (gx * gx + gy * gy + gz * gz)) ** 2).sum()
+
+    v = sdf
+    total = v.new_zeros(())
+    for lo in (True, False):  # x faces, whole
+        layer, normal = (v[:, 0], (v[:, 1] - v[:, 0]) / h) if lo else (v[:, -1], (v[:, -1] - v[:, -2]) / h)
+        total = total + residual(normal, along(layer, 1), along(layer, 2))
+    for lo in (True, False):  # y faces, without the x faces' edges
+        layer, normal = (v[:, :, 0], (v[:, :, 1] - v[:, :, 0]) / h) if lo else (v[:, :, -1], (v[:, :, -1] - v[:, :, -2]) / h)
+        total = total + residual(along(layer, 1)[:, 1:-1], normal[:, 1:-1], along(layer, 2)[:, 1:-1])
+    for lo in (True, False):  # z faces, without the x and y faces' edges
+        layer, normal = (v[..., 0], (v[..., 1] - v[..., 0]) / h) if lo else (v[..., -1], (v[..., -1] - v[..., -2]) / h)
+        total = total + residual(along(layer, 1)[:, 1:-1, 1:-1], along(layer, 2)[:, 1:-1, 1:-1], normal[:, 1:-1, 1:-1])
+    return total
+
+
 def _one_term(sdf: torch.Tensor, voxel_size: float, mu: Optional[float], term) -> torch.Tensor:
     st, h = _band_stencil(sdf, voxel_size, mu)
     return _zero(sdf) if st is None else term(st @ _stencil_weights(st, h))
 
 
-__all__ = ["narrow_band", "band_vertices", "band_regularisers", "eikonal_loss", "laplacian_loss", "check_grid"]
+__all__ = ["narrow_band", "band_vertices", "band_regularisers", "box_face_eikonal_sum", "eikonal_loss", "laplacian_loss", "check_grid"]

@@ -7,7 +7,8 @@ import pytest
 import torch
 
 import renderer
-from sdfcommon.numerics.regularisers import band_regularisers, eikonal_loss, laplacian_loss, narrow_band
+from sdfcommon.numerics.regularisers import (band_regularisers, box_face_eikonal_sum, eikonal_loss, laplacian_loss,
+                                             narrow_band)
 
 
 def ramp_grid(values_along_x, ny: int = 3, nz: int = 3, dtype=torch.float64) -> torch.Tensor:
@@ -189,3 +190,26 @@ def test_every_interior_vertex_is_listed_once_and_cached():
     inner = (i > 0) & (i < 4) & (j > 0) & (j < 5) & (k > 0) & (k < 6)
     assert torch.equal(got, inner.reshape(-1).nonzero().squeeze(1))
     assert band_vertices(torch.zeros(2, 5, 6, 7), 0.2, None)[0] is got
+
+
+def test_box_faces_complete_the_eikonal_of_every_vertex():
+    """Interior (band_regularisers, mu=None) plus the box faces is the mean over all vertices of the
+    residual of SDFGrid.vertex_gradient (one-sided on the faces): each face vertex counted once."""
+    torch.manual_seed(0)
+    for n in (3, 7):
+        axis = torch.linspace(-1.0, 1.0, n)
+        p = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), dim=-1)
+        v = (p.norm(dim=-1) - 0.5)[None].repeat(2, 1, 1, 1) + 0.05 * torch.randn(2, n, n, n)
+        v.requires_grad_(True)
+        g = renderer.SDFGrid(v, -1.0, 1.0).vertex_gradient()
+        want = ((1.0 - (g * g).sum(-1)) ** 2).mean()
+        eik, _ = band_regularisers(v, 2.0 / (n - 1), mu=None)
+        got = (eik * (2 * (n - 2) ** 3) + box_face_eikonal_sum(v, 2.0 / (n - 1))) / (2 * n ** 3)
+        assert got.item() == pytest.approx(want.item(), rel=1e-5)
+        g_got, = torch.autograd.grad(got, v)
+        g_want, = torch.autograd.grad(want, v)
+        assert torch.allclose(g_got, g_want, atol=1e-6)
+    # A plane at unit slope is a distance field: no residual on its faces either.
+    axis = torch.linspace(0.0, 1.0, 5)
+    x = torch.meshgrid(axis, axis, axis, indexing="ij")[0][None]
+    assert box_face_eikonal_sum(x - 0.3, 0.25).item() == pytest.approx(0.0, abs=1e-10)
