@@ -1,23 +1,14 @@
 """Where a single-view network's output is wrong in depth, run as ``python -m benchmarks.svr_depth_errors
-CKPT [--preset demo|bench] [--split test] [--every 2] [--calibrated] [--out FILE.md]``.
-
-Voxel IoU and the side views say how wrong a prediction is; this says where. Every ``--every``-th
-object of a procedural split is predicted from one view (object ``i`` from view ``i mod 24``, so all
-views are used), and its direct occupancy (the SDF below 0 at the NMR voxel centres) is compared
-with the object's voxels:
-
-- false positives (predicted solid, truly empty), split into those *hidden* behind the input
-  silhouette (inside the input view's cone of rays: the image cannot show they are wrong) and those
-  *visible* outside it; of the hidden ones, those outside the visual hull of the object's 24 views
-  (what its own images could carve away);
-- false negatives, inside and outside the input view's cone;
-- the silhouette area (prediction / truth) and IoU from the input view and from the two side views
-  (90 degrees either side, ``svr.nmr.side_views``), at 64^2.
-
-Counts are per true solid voxel, pooled over a category's objects, then averaged over the
-categories (as the benchmark weighs them). The raw output unless ``--calibrated`` (the checkpoint's
-calibration, if it holds one). Reads only what the split holds: images, cameras, voxels.
-"""
+CKPT [--preset demo|bench] [--split test] [--every 2] [--calibrated] [--out FILE.md]``: every
+``--every``-th object of a procedural split is predicted from view ``index mod 24`` and its direct
+occupancy (the SDF below 0 at the NMR voxel centres) compared with the object's voxels. False
+positives are split into those hidden behind the input silhouette (inside the input view's cone:
+the image cannot show they are wrong), and of them those outside the visual hull of the object's
+24 views (what its own images could carve), and those visible outside the cone; false negatives
+into inside and outside the cone; beside them the silhouette area (prediction / truth) and IoU from
+the input view and the two side views (``svr.nmr.side_views``), at 64^2. Counts are per true solid
+voxel, pooled over a category's objects, then averaged over the categories; the raw output unless
+``--calibrated``. Reads only what the split holds: images, cameras, voxels."""
 from __future__ import annotations
 
 import argparse
@@ -154,7 +145,7 @@ def markdown(result: dict, command: str) -> str:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    doc = (__doc__ or "").strip().split("\n\n")[0]
+    doc = (__doc__ or "").strip().split(": every")[0]
     parser = argparse.ArgumentParser(prog="python -m benchmarks.svr_depth_errors", description=doc)
     parser.add_argument("ckpt", type=Path, help="a single-view checkpoint")
     parser.add_argument("--preset", choices=sorted(DATA_PRESETS), default="demo", help="procedural data preset")
