@@ -66,6 +66,40 @@ def test_the_untrained_head_leaves_the_features_and_trains_them():
         head(vol, maps, torch.tensor([0]), points)
 
 
+def test_the_first_layer_in_two_products_is_the_plain_one():
+    """The head multiplies the inputs that need a gradient apart from those that do not (to spare the
+    backward pass their input gradient): the same output and the same gradients as ``first`` on the
+    concatenated ``cell_inputs``."""
+    torch.manual_seed(0)
+    head = PixelAlignedHead(image_channels=(4, 8, 6), volume_channels=3, hidden=7, head_stride=2, mirror_axis=0)
+    torch.nn.init.normal_(head.out.weight)
+    axis = torch.linspace(-0.5, 0.5, 8)
+    points = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1)
+    images = torch.rand(2, 4, 64, 64)  # data: no gradient
+
+    def run(split: bool):
+        vol = torch.randn(2, 3, 4, 4, 4, generator=torch.Generator().manual_seed(1)).requires_grad_(True)
+        maps = [images] + [torch.rand(2, c, r, r, generator=torch.Generator().manual_seed(c)).requires_grad_(True)
+                           for c, r in ((8, 32), (6, 16))]
+        head.zero_grad()
+        if split:
+            out = head(vol, maps, torch.tensor([0, 7]), points)
+        else:
+            h = torch.relu(head.first(head.cell_inputs(vol, maps, torch.tensor([0, 7]), points)))
+            out = vol + head.out(h).reshape(2, 4, 4, 4, 3).permute(0, 4, 1, 2, 3)
+        (out * torch.linspace(-1, 1, out.numel()).reshape(out.shape)).sum().backward()
+        return out.detach(), vol.grad, [m.grad for m in maps[1:]], head.first.weight.grad.clone()
+
+    (a, ga, ma, wa), (b, gb, mb, wb) = run(True), run(False)
+    torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(ga, gb, rtol=1e-5, atol=1e-6)
+    for x, y in zip(ma, mb):
+        assert x.abs().sum() > 0
+        torch.testing.assert_close(x, y, rtol=1e-5, atol=1e-6)
+    assert wa[:, 3:].abs().sum() > 0  # the positions, image samples and depths learn too
+    torch.testing.assert_close(wa, wb, rtol=1e-5, atol=1e-6)
+
+
 def test_model_pixel_builds_trains_and_needs_views():
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
         cfg = compose("train", overrides=["model=pixel", "model.local.mirror_axis=0"])
