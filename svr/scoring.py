@@ -3,10 +3,11 @@ coarse stage's and every baseline (``svr.evaluation.baselines``) on the same ima
 protocol (``score_run``), then the evaluation's files, once, beside the demo's pictures of
 predictions and meshes (``RunScores.write``). Each checkpoint is first calibrated on the validation
 split (``svr.evaluation.calibration_search``), once: the choice is stored in the checkpoint, so
-inference from it applies the same."""
+inference from it applies the same; so is a framing bank for photos (``bank_checkpoints``)."""
 from __future__ import annotations
 
 import dataclasses
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Optional
@@ -19,6 +20,7 @@ from svr.evaluation.baselines import BASELINES
 from svr.evaluation.calibration_search import search_calibration, store_calibration, stored_calibration
 from svr.evaluation.protocol import add_baselines, evaluate
 from svr.evaluation.tables import EvaluationResult, format_table, write_report
+from svr.inference.framing_bank import build_framing_bank, store_framing_bank, stored_framing_bank
 from svr.inference.prediction import load_model
 from svr.inference.showcase import showcase
 from svr.nmr.metrics import IoUTable
@@ -80,6 +82,26 @@ def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool =
     return record
 
 
+def bank_checkpoints(paths, datamodule: SVRDataModule, progress: bool = True) -> Optional[int]:
+    """Stores a framing bank of the data module's training split (``svr.inference.framing_bank``:
+    how ``svr.infer`` frames a photo whose camera it estimates) in each checkpoint of ``paths``
+    whose network has a camera head and that holds none; built once. Returns the bank's size, or
+    None where no checkpoint needed one."""
+    todo = [p for p in dict.fromkeys(paths)
+            if getattr(load_model(p, "cpu").net, "camera", None) is not None and stored_framing_bank(p) is None]
+    if not todo:
+        return None
+    datamodule.prepare_split("train", progress=progress)
+    started = time.perf_counter()
+    bank = build_framing_bank(datamodule.dataset("train"))
+    for p in todo:
+        store_framing_bank(p, bank)
+    if progress:
+        print(f"stored a framing bank of {len(bank)} training renders in {len(todo)} checkpoint(s) "
+              f"({time.perf_counter() - started:.0f} s)", flush=True)
+    return len(bank)
+
+
 def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str = "test", progress: bool = True,
               protocol_workers: int = 0, calibrate: bool = True, recalibrate: bool = False,
               carving: bool = True, device: str = "auto") -> RunScores:
@@ -100,6 +122,7 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
             if stage not in calibrations:
                 calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate, carving=carving,
                                                            device=device, protocol_workers=protocol_workers)
+    bank_checkpoints([final_ckpt, coarse_ckpt], dm, progress)
 
     def load(path: Path):
         model = load_model(path, device)
@@ -120,4 +143,4 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     return RunScores(result, f"ours ({schedule[-1]} stage, {result.output})", extra, calibrations, list(pictures))
 
 
-__all__ = ["RunScores", "calibrate_checkpoint", "score_run"]
+__all__ = ["RunScores", "bank_checkpoints", "calibrate_checkpoint", "score_run"]

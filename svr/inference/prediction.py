@@ -21,6 +21,7 @@ from sdfcommon.tooling.serialization import scrub_unsafe_advice
 
 from svr.inference.calibration import Calibration
 from svr.inference.checkpoints import load_network
+from svr.inference.framing_bank import FramingBank
 from svr.models.network import SVRNet, SVRPrediction
 from svr.nmr.format import NUM_VIEWS
 from svr.nmr.voxels import clip_to_box
@@ -62,6 +63,8 @@ class LoadedModel:
         categories: the training data's (category id, name) pairs, when the checkpoint has them.
         calibration: what the predictions go through after the network (None: nothing), the
             checkpoint's when it holds one (``svr.evaluation.calibration_search.store_calibration``).
+        framing_bank: how a photo is framed when its camera is estimated (``svr.inference.framing_bank``),
+            the checkpoint's when it holds one (None: the camera head's framing).
     """
 
     net: SVRNet
@@ -69,6 +72,7 @@ class LoadedModel:
     checkpoint: Optional[Path] = None
     categories: Optional[tuple[tuple[str, str], ...]] = None
     calibration: Optional[Calibration] = None
+    framing_bank: Optional[FramingBank] = None
 
     @property
     def device(self) -> torch.device:
@@ -120,11 +124,13 @@ def load_model(ckpt_path: PathLike, device: Union[str, torch.device, None] = "au
     except ValueError as err:
         raise ValueError(f"ckpt_path: {scrub_unsafe_advice(str(err))}") from None
     cats = meta.get("categories")
-    calibration = meta.get("calibration")
+    calibration, bank = meta.get("calibration"), meta.get("framing_bank")
     return LoadedModel(net=net, stage=str(meta["stage"]), checkpoint=path,
                        categories=tuple((str(c), str(n)) for c, n in cats) if cats else None,
                        calibration=(Calibration.from_dict(calibration["settings"], f"{path}: calibration")
-                                    if calibration else None))
+                                    if calibration else None),
+                       framing_bank=(FramingBank.from_record(bank, f"ckpt_path: {path}: framing bank")
+                                     if bank else None))
 
 
 def check_model(model: LoadedModel, name: str = "model") -> LoadedModel:

@@ -296,8 +296,9 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
     head estimates it from each image (``svr.inference.input_camera.estimate_cameras``), and a
     network that reads the camera but has no head is refused. Framing (``frame_image``) crops and
     scales each photo so that its object sits as in a training render from that camera: by default
-    (``frame`` None) where the camera is not given, with the head's framing (else the training
-    renders' median); ``frame`` True or False asks for it or not.
+    (``frame`` None) where the camera is not given, with the checkpoint's framing bank
+    (``svr.inference.framing_bank``; else the head's framing, else the training renders' median);
+    ``frame`` True or False asks for it or not.
 
     Args:
         model: the network and its stage (``svr.inference.prediction.load_model``).
@@ -384,18 +385,20 @@ def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optiona
                      framed: bool, elevation: Optional[float] = None) -> tuple[torch.Tensor, Optional[InputCamera]]:
     """One photo's network input and camera: the camera given, or estimated by the camera head from
     the photo framed as the training renders' median (the head crops to the silhouette, so only the
-    resolution matters); then, when ``framed``, the photo framed as the camera's renders are (the
-    head's framing when it has one, else the median). ``elevation`` (degrees) replaces the given or
-    estimated camera's."""
+    resolution matters); then, when ``framed``, the photo framed as the camera's renders are: by
+    the model's framing bank where it has one (``svr.inference.framing_bank``), else by the head's
+    framing, else the median. ``elevation`` (degrees) replaces the given or estimated camera's."""
     head = getattr(m.net, "camera", None)
     camera = InputCamera(view=float(given)) if given is not None else None
-    if head is not None and (camera is None or framed):
+    framing = TRAINING_FRAMING
+    if (head is not None and (camera is None or framed)) or (framed and m.framing_bank is not None):
         median, _ = frame_image(rgba, name, m.image_size, TRAINING_FRAMING)
-        estimate = estimate_cameras(m.net, rgba_to_input(median, name, m.image_size)[None])[0]
-        camera = camera if camera is not None else estimate
-        framing = estimate.framing
-    else:
-        framing = TRAINING_FRAMING
+        if head is not None:
+            estimate = estimate_cameras(m.net, rgba_to_input(median, name, m.image_size)[None])[0]
+            camera = camera if camera is not None else estimate
+            framing = estimate.framing
+        if m.framing_bank is not None:
+            framing = m.framing_bank.estimate(median[..., 3])
     if camera is not None and elevation is not None:
         camera = dataclasses.replace(camera, elevation_deg=float(elevation))
     if not framed:
