@@ -53,6 +53,8 @@ class InputCamera:
         probability: the estimate's probability of ``view`` (None when given).
         framing: where the object's silhouette sits in a training render from this camera (the
             estimate's; None when given or unknown).
+        framing_source: what ``framing`` came from: "framing bank", "camera head" or "training
+            median" (None with no framing).
         transform: how the photo was cropped and scaled into the network's input (None: resized as
             it came).
         elevation_deg: the camera's elevation (NMR's 30 unless given or estimated).
@@ -64,6 +66,7 @@ class InputCamera:
     framing: Optional[Framing] = None
     transform: Optional[FrameTransform] = None
     elevation_deg: float = NMR_ELEVATION_DEG
+    framing_source: Optional[str] = None
 
     @property
     def row(self) -> tuple[float, float]:
@@ -101,6 +104,8 @@ class InputCamera:
             out["probability"] = round(float(self.probability), 6)
         if self.framing is not None:
             out["framing"] = asdict(self.framing)
+            if self.framing_source is not None:
+                out["framing_source"] = self.framing_source
         if self.transform is not None:
             out["photo_to_input"] = self.transform.to_dict()
         return out

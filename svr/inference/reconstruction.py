@@ -390,22 +390,22 @@ def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optiona
     framing, else the median. ``elevation`` (degrees) replaces the given or estimated camera's."""
     head = getattr(m.net, "camera", None)
     camera = InputCamera(view=float(given)) if given is not None else None
-    framing = TRAINING_FRAMING
+    framing, source = TRAINING_FRAMING, "training median"
     if (head is not None and (camera is None or framed)) or (framed and m.framing_bank is not None):
         median, _ = frame_image(rgba, name, m.image_size, TRAINING_FRAMING)
         if head is not None:
             estimate = estimate_cameras(m.net, rgba_to_input(median, name, m.image_size)[None])[0]
             camera = camera if camera is not None else estimate
-            framing = estimate.framing
+            framing, source = estimate.framing, "camera head"
         if m.framing_bank is not None:
-            framing = m.framing_bank.estimate(median[..., 3])
+            framing, source = m.framing_bank.estimate(median[..., 3]), "framing bank"
     if camera is not None and elevation is not None:
         camera = dataclasses.replace(camera, elevation_deg=float(elevation))
     if not framed:
         return rgba_to_input(rgba, name, m.image_size), camera
     image, transform = frame_image(rgba, name, m.image_size, framing)
     if camera is not None:
-        camera = dataclasses.replace(camera, framing=framing, transform=transform)
+        camera = dataclasses.replace(camera, framing=framing, framing_source=source, transform=transform)
     return rgba_to_input(image, name, m.image_size), camera
 
 

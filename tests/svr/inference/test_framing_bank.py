@@ -125,9 +125,10 @@ def test_the_checkpoint_keeps_the_bank_and_infer_frames_by_it(tmp_path):
     photo = render(3.3, (20, 41), (260, 250))
     _, camera = input_and_camera(model, photo, "photo.png", None, True)
     assert dataclasses.astuple(camera.framing) == pytest.approx((0.5, 0.45, 0.4), abs=1e-6)
+    assert camera.framing_source == "framing bank" and camera.record()["framing_source"] == "framing bank"
     _, without = input_and_camera(dataclasses.replace(model, framing_bank=None), photo, "photo.png", None, True)
     assert dataclasses.astuple(without.framing) != pytest.approx((0.5, 0.45, 0.4), abs=1e-3)  # the head's
-    assert isinstance(without.framing, Framing)
+    assert isinstance(without.framing, Framing) and without.framing_source == "camera head"
 
 
 def test_scoring_banks_the_checkpoints_that_have_a_camera_head_once(tmp_path, capsys):
