@@ -93,7 +93,11 @@ def bank_checkpoints(paths, datamodule: SVRDataModule, progress: bool = True) ->
         return None
     datamodule.prepare_split("train", progress=progress)
     started = time.perf_counter()
-    bank = build_framing_bank(datamodule.dataset("train"))
+    try:
+        bank = build_framing_bank(datamodule.dataset("train"))
+    except ValueError as err:  # e.g. every training silhouette touches the border
+        print(f"no framing bank stored ({err}); svr.infer will frame photos by the camera head", flush=True)
+        return None
     for p in todo:
         store_framing_bank(p, bank)
     if progress:

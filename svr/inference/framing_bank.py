@@ -43,10 +43,10 @@ def bank_features(alpha: np.ndarray | torch.Tensor) -> torch.Tensor:
         raise ValueError(f"alpha must be (N, {2 * BANK_SIDE}, {2 * BANK_SIDE}), got shape {tuple(a.shape)}")
     a = a.float() / 255.0 if a.dtype == torch.uint8 else a.float()
     n = a.shape[0]
-    return a.reshape(n, BANK_SIDE, 2, BANK_SIDE, 2).mean((2, 4)).reshape(n, -1) >= 0.5
+    return a.reshape(n, BANK_SIDE, 2, BANK_SIDE, 2).mean((2, 4)).reshape(n, BANK_SIDE ** 2) >= 0.5
 
 
-def frame_alphas(alpha: np.ndarray, framing: Framing = TRAINING_FRAMING) -> tuple[torch.Tensor, np.ndarray]:
+def frame_alphas(alpha: np.ndarray, framing: Framing = TRAINING_FRAMING) -> tuple[torch.Tensor, np.ndarray, np.ndarray]:
     """(N, S, S) uint8 alpha channels framed as ``framing.frame_image`` frames a photo (the
     silhouette's box, alpha >= 128, scaled to ``framing``'s extent and centre; bilinear sub-samples
     averaged over each pixel; transparent outside), all at once.
@@ -62,6 +62,8 @@ def frame_alphas(alpha: np.ndarray, framing: Framing = TRAINING_FRAMING) -> tupl
     rows, cols = mask.any(axis=2), mask.any(axis=1)
     clear = rows.any(axis=1) & ~rows[:, 0] & ~rows[:, -1] & ~cols[:, 0] & ~cols[:, -1]
     keep = np.flatnonzero(clear)
+    if not len(keep):
+        return torch.zeros(0, size, size), np.zeros((0, 3), np.float32), keep
     rows, cols = rows[keep], cols[keep]
     top = rows.argmax(axis=1).astype(np.float64)
     bottom = size - rows[:, ::-1].argmax(axis=1).astype(np.float64)
@@ -86,6 +88,15 @@ def frame_alphas(alpha: np.ndarray, framing: Framing = TRAINING_FRAMING) -> tupl
     return out, own, keep
 
 
+_BITS = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
+
+
+def _popcount(packed: np.ndarray) -> np.ndarray:
+    """Set bits of each byte (numpy's bitwise_count where it has one, numpy >= 2.0)."""
+    count = getattr(np, "bitwise_count", None)
+    return count(packed) if count is not None else _BITS[packed]
+
+
 @dataclass(frozen=True)
 class FramingBank:
     """Training renders' silhouettes framed as photos are, and the framings the renders had.
@@ -106,7 +117,10 @@ class FramingBank:
         if self.framings.shape != (len(self.silhouettes), 3):
             raise ValueError(f"framings must be ({len(self.silhouettes)}, 3), got {tuple(self.framings.shape)}")
         if len(self.silhouettes) == 0:
-            raise ValueError("a framing bank needs at least one render")
+            raise ValueError("a framing bank needs at least one render (every silhouette touched the border?)")
+        packed = np.packbits(self.silhouettes.numpy().astype(np.uint8), axis=1)  # compared as bits
+        object.__setattr__(self, "_packed", packed)
+        object.__setattr__(self, "_area", _popcount(packed).sum(1, dtype=np.int64))
 
     def __len__(self) -> int:
         return len(self.silhouettes)
@@ -115,10 +129,10 @@ class FramingBank:
         """The framing of a photo whose (S, S) uint8 alpha has been framed to ``self.framing``: the
         mean of its ``neighbours`` nearest entries' framings (by silhouette IoU), weighted by the IoU
         to the power ``WEIGHT_POWER``."""
-        q = bank_features(np.asarray(framed_alpha)[None])[0].float()
-        bank = self.silhouettes.float()
-        inter = bank @ q
-        iou = inter / (bank.sum(1) + q.sum() - inter).clamp(min=1.0)
+        q = np.packbits(bank_features(np.asarray(framed_alpha)[None])[0].numpy().astype(np.uint8))
+        inter = _popcount(self._packed & q).sum(1, dtype=np.int64)
+        union = self._area + int(_popcount(q).sum()) - inter
+        iou = torch.from_numpy(inter / np.maximum(union, 1))
         top = torch.topk(iou, min(int(neighbours), len(self))).indices
         w = iou[top].double() ** WEIGHT_POWER
         if float(w.sum()) <= 0.0:  # nothing overlaps at all: the median framing
@@ -128,8 +142,8 @@ class FramingBank:
 
     def record(self) -> dict[str, Any]:
         """What the checkpoint keeps (``from_record`` reads it back): the silhouettes bit-packed."""
-        packed = np.packbits(self.silhouettes.numpy().astype(np.uint8), axis=1)
-        return {"side": BANK_SIDE, "silhouettes": torch.from_numpy(packed), "framings": self.framings.clone(),
+        return {"side": BANK_SIDE, "silhouettes": torch.from_numpy(self._packed.copy()),
+                "framings": self.framings.clone(),
                 "framing": [self.framing.extent, self.framing.centre_x, self.framing.centre_y]}
 
     @classmethod

@@ -154,3 +154,25 @@ def test_scoring_banks_the_checkpoints_that_have_a_camera_head_once(tmp_path, ca
     stamp = with_head.stat().st_mtime_ns
     assert bank_checkpoints([with_head, without], Data()) is None  # kept, not rebuilt
     assert with_head.stat().st_mtime_ns == stamp
+
+
+def test_a_split_whose_silhouettes_all_touch_the_border_gets_no_bank(tmp_path, capsys):
+    from svr.scoring import bank_checkpoints
+
+    alphas = shapes(NUM_VIEWS)
+    alphas[:, :, 0] = 255
+    framed, own, keep = frame_alphas(alphas)
+    assert framed.shape == (0, 64, 64) and own.shape == (0, 3) and len(keep) == 0
+    with pytest.raises(ValueError, match="at least one render"):
+        build_framing_bank(Views(alphas))
+
+    class Data:
+        def prepare_split(self, split, progress=True):
+            pass
+
+        def dataset(self, split):
+            return Views(alphas)
+
+    ckpt = pixel_checkpoint(tmp_path)
+    assert bank_checkpoints([ckpt], Data()) is None and stored_framing_bank(ckpt) is None
+    assert "no framing bank stored" in capsys.readouterr().out
