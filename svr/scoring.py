@@ -20,7 +20,7 @@ from svr.evaluation.baselines import BASELINES
 from svr.evaluation.calibration_search import search_calibration, store_calibration, stored_calibration
 from svr.evaluation.protocol import add_baselines, evaluate
 from svr.evaluation.tables import EvaluationResult, format_table, write_report
-from svr.inference.framing_bank import build_framing_bank, store_framing_bank, stored_framing_bank
+from svr.inference.framing_bank import build_framing_bank, store_framing_bank
 from svr.inference.prediction import load_model
 from svr.inference.showcase import showcase
 from svr.nmr.metrics import IoUTable
@@ -87,8 +87,11 @@ def bank_checkpoints(paths, datamodule: SVRDataModule, progress: bool = True) ->
     how ``svr.infer`` frames a photo whose camera it estimates) in each checkpoint of ``paths``
     whose network has a camera head and that holds none; built once. Returns the bank's size, or
     None where no checkpoint needed one."""
-    todo = [p for p in dict.fromkeys(paths)
-            if getattr(load_model(p, "cpu").net, "camera", None) is not None and stored_framing_bank(p) is None]
+    def needs_bank(path) -> bool:
+        model = load_model(path, "cpu")  # reads a stored bank too
+        return getattr(model.net, "camera", None) is not None and model.framing_bank is None
+
+    todo = [p for p in dict.fromkeys(paths) if needs_bank(p)]
     if not todo:
         return None
     datamodule.prepare_split("train", progress=progress)
