@@ -6,6 +6,7 @@ annotated with a dataclass are built the same way, recursively; fields annotated
 needs it (``hydra.utils.instantiate``), e.g. a data module or a network."""
 from __future__ import annotations
 
+import collections.abc
 import dataclasses
 import importlib
 import typing
@@ -43,6 +44,42 @@ def _dataclass_of(hint: Any) -> Optional[type]:
     return None
 
 
+def _dataclasses_in(hint: Any) -> tuple[type, ...]:
+    """The dataclasses an annotation's items may be, for a ``tuple[X, ...]``, ``list[X]`` or
+    ``Sequence[X]`` annotation whose X is a dataclass or a Union of them; () for any other."""
+    origin = typing.get_origin(hint)
+    if typing.get_origin(hint) is Union:  # Optional[tuple[...]]
+        inner = [a for a in typing.get_args(hint) if a is not type(None)]
+        return _dataclasses_in(inner[0]) if len(inner) == 1 else ()
+    if origin not in (tuple, list, collections.abc.Sequence):
+        return ()
+    args = [a for a in typing.get_args(hint) if a is not Ellipsis]
+    if len(args) != 1:
+        return ()
+    item = args[0]
+    options = typing.get_args(item) if typing.get_origin(item) is Union else (item,)
+    if options and all(dataclasses.is_dataclass(a) and isinstance(a, type) for a in options):
+        return tuple(options)
+    return ()
+
+
+def _build_item(options: tuple[type, ...], value: Mapping[str, Any], name: str) -> Any:
+    """One item of a sequence of dataclasses from its dict: the class its ``_target_`` names (one
+    of ``options`` or a subclass), or the only option."""
+    target = value.get("_target_")
+    if target is None:
+        if len(options) > 1:
+            names = ", ".join(target_of(o) for o in options)
+            raise ValueError(f"{name}: say which kind with _target_ (one of {names})")
+        return build_dataclass(options[0], value, name)
+    named = get_class(target)
+    for option in options:
+        if isinstance(named, type) and issubclass(named, option):
+            return build_dataclass(option, value, name)
+    names = ", ".join(target_of(o) for o in options)
+    raise TypeError(f"{_key(name, '_target_')} must name one of {names}, got {target!r}")
+
+
 def _key(prefix: str, name: str) -> str:
     return f"{prefix}.{name}" if prefix else name
 
@@ -78,6 +115,10 @@ def build_dataclass(cls: type, values: Mapping[str, Any], name: str = "") -> Any
         nested = _dataclass_of(hints.get(field_name))
         if nested is not None and isinstance(value, Mapping):
             values[field_name] = build_dataclass(nested, value, _key(name, field_name))
+        options = _dataclasses_in(hints.get(field_name))
+        if options and isinstance(value, (list, tuple)):
+            values[field_name] = tuple(_build_item(options, v, f"{_key(name, field_name)}[{i}]")
+                                       if isinstance(v, Mapping) else v for i, v in enumerate(value))
     check_field_types(cls, {k: v for k, v in values.items() if _dataclass_of(hints.get(k)) is None}, name)
     for f in fields.values():
         if f.name not in values and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:

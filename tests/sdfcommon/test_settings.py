@@ -112,3 +112,25 @@ def test_a_time_stamp_resolves_as_it_did_for_the_run_folder():
     next(ticks)  # a later resolution would see another value
     settings = build_settings(cfg)
     assert run_dir == "o/0" and settings == Folders({"out": "o/0"}, "o/0/x")
+
+
+def test_a_list_of_dataclasses_is_built_item_by_item_each_named_by_its_target():
+    """configs/mvr.yaml's ``scene.lights``: every item a light built from its dict, the kind named by
+    its ``_target_``; the record builds the same settings back; mistakes name the item."""
+    lights = ("scene.lights=[{_target_:renderer.DirectionalLight,direction:[1,1,1],intensity:0.25},"
+              "{_target_:renderer.PointLight,position:[0,2,0],falloff:false}]")
+    settings = build_settings(compose("mvr", ["target=torus", lights]))
+    from renderer import DirectionalLight, PointLight
+    assert settings.scene.lights == (DirectionalLight((1.0, 1.0, 1.0), 0.25), PointLight((0.0, 2.0, 0.0), 1.0, False))
+    assert build_settings(settings_record(settings)) == settings
+    for items, error, message in [
+        ("[{direction:[1,1,1]}]", ValueError, "scene.lights[0]: say which kind with _target_ (one of "
+                                              "renderer.DirectionalLight, renderer.PointLight)"),
+        ("[{_target_:renderer.Scene}]", TypeError, "scene.lights[0]._target_ must name one of "
+                                                   "renderer.DirectionalLight, renderer.PointLight, got 'renderer.Scene'"),
+        ("[{_target_:renderer.PointLight,pos:[0,1,0]}]", ValueError,
+         "scene.lights[0].pos: unknown setting (PointLight has: position, intensity, falloff)"),
+    ]:
+        with pytest.raises(error) as err:
+            build_settings(compose("mvr", ["target=torus", f"scene.lights={items}"]))
+        assert str(err.value) == message
