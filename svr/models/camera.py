@@ -13,7 +13,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from sdfcommon.tooling.checks import check_int
+from sdfcommon.tooling.checks import check_float, check_int
 from svr.nmr.format import NUM_VIEWS
 # The crop's longest side fills this share of the square (a margin for the anti-aliased edge).
 CROP_FILL = 0.9
@@ -99,14 +99,19 @@ class ViewHead(nn.Module):
             its cost per step grows with them.
         elevation: also regress the camera's elevation (only data with extra views, at other
             elevations than NMR's 30 degrees, teaches it anything: ``data.extra_views``).
+        lr_scale: its learning rate as a multiple of the stage's (its own parameter group in
+            ``SVRLightningModule.configure_optimizers``; the schedule scales both alike).
     """
 
     def __init__(self, channels: tuple[int, ...] | list[int] = (32, 64, 128), crop_size: int = 32,
-                 train_views: int = 4, elevation: bool = False) -> None:
+                 train_views: int = 4, elevation: bool = False, lr_scale: float = 1.0) -> None:
         super().__init__()
         check_int(crop_size, "crop_size", minimum=8)
         check_int(train_views, "train_views", minimum=1)
         self.train_views = int(train_views)
+        self.lr_scale = check_float(lr_scale, "lr_scale", minimum=0.0)
+        if self.lr_scale == 0:
+            raise ValueError("lr_scale must be positive, got 0")
         if not channels or any(int(c) < 1 for c in channels):
             raise ValueError(f"channels must be a non-empty list of positive widths, got {channels!r}")
         layers: list[nn.Module] = []

@@ -267,7 +267,17 @@ class SVRLightningModule(pl.LightningModule):
         params = self._trainable()
         if not params:
             raise ValueError(f"stage {self.stage!r} has no trainable parameters")
-        opt = self.optimizer_factory(params)
+        head = self.net.camera
+        scale = head.lr_scale if head is not None else 1.0
+        own = {id(p) for p in head.parameters()} if head is not None else set()
+        groups = ([p for p in params if id(p) not in own], [p for p in params if id(p) in own])
+        if scale != 1.0 and all(groups):
+            # The camera head's own group, at its own rate (Adam's steps are per weight, so the rest
+            # train exactly as without it).
+            opt = self.optimizer_factory([{"params": groups[0]}, {"params": groups[1]}])
+            opt.param_groups[1]["lr"] = opt.defaults["lr"] * scale
+        else:
+            opt = self.optimizer_factory(params)
         if self.scheduler_factory is None:
             return opt
         return {"optimizer": opt, "lr_scheduler": {"scheduler": self.scheduler_factory(opt), "interval": "step"}}

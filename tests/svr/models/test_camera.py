@@ -80,6 +80,9 @@ def test_the_head_is_a_plain_module_with_checked_arguments():
         ViewHead(channels=[])
     with pytest.raises(ValueError, match="crop_size"):
         ViewHead(crop_size=4)
+    for bad in (0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="lr_scale must be"):
+            ViewHead(lr_scale=bad)
     logits, framing = ViewHead()(torch.rand(3, 4, 64, 64))
     assert logits.shape == (3, NUM_VIEWS) and framing.shape == (3, 3)
     # Untrained, it guesses the procedural renders' median framing.
