@@ -31,7 +31,7 @@ from sdfcommon.tooling.host_memory import keep_freed_memory
 from sdfcommon.tooling.settings import build_settings
 from svr import losses
 from svr.models.checkpoint_layout import STAGES
-from svr.training.stages import build_module, resolve_mirror_axis
+from svr.training.stages import build_module, resolve_model
 
 ROOT = Path(__file__).resolve().parents[1]
 # The configs of the checkout measured, beside its svr package: run in a --baseline checkout, that
@@ -96,8 +96,9 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     loader = dm.train_dataloader()
     it = iter(loader)
     batch = next(it).to(device)
-    # The network as training builds it: a pixel head's mirror_axis "auto" measured on the split.
-    settings = resolve_mirror_axis(build_settings(cfg), dm)
+    # The network as training builds it: a pixel head's mirror_axis "auto" measured on the split,
+    # the camera head's elevation "auto" from the data's extra views.
+    settings = resolve_model(build_settings(cfg), dm)
     net = instantiate(settings.model).to(device)
     module = build_module(settings, net, "joint", dm).to(device)
     module.train()

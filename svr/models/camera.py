@@ -109,6 +109,9 @@ class ViewHead(nn.Module):
         check_int(crop_size, "crop_size", minimum=8)
         check_int(train_views, "train_views", minimum=1)
         self.train_views = int(train_views)
+        if not isinstance(elevation, bool):
+            raise ValueError(f"elevation must be true or false, got {elevation!r} (auto is resolved by the "
+                             "training command, from whether it draws extra views)")
         self.lr_scale = check_float(lr_scale, "lr_scale", minimum=0.0)
         if self.lr_scale == 0:
             raise ValueError("lr_scale must be positive, got 0")

@@ -112,6 +112,25 @@ def resolve_mirror_axis(settings: TrainSettings, datamodule) -> TrainSettings:
     return dataclasses.replace(settings, model=model)
 
 
+def resolve_camera_elevation(settings: TrainSettings, datamodule) -> TrainSettings:
+    """The settings with a camera head's ``elevation: auto`` replaced by whether training draws
+    extra views (``data.extra_view_share`` > 0): the only views at other elevations than NMR's 30
+    degrees, so the only ones that teach the head's elevation output anything."""
+    camera = settings.model.get("camera") if isinstance(settings.model, dict) else None
+    if not isinstance(camera, dict) or camera.get("elevation") != "auto":
+        return settings
+    elevation = float(getattr(datamodule, "extra_view_share", 0.0)) > 0
+    log.info("model.camera.elevation=%s (training %s extra views)", elevation, "draws" if elevation else "draws no")
+    model = {**settings.model, "camera": {**camera, "elevation": elevation}}
+    return dataclasses.replace(settings, model=model)
+
+
+def resolve_model(settings: TrainSettings, datamodule) -> TrainSettings:
+    """The settings with the model's ``auto`` values measured on the data (``resolve_mirror_axis``,
+    ``resolve_camera_elevation``): the network as training builds it."""
+    return resolve_camera_elevation(resolve_mirror_axis(settings, datamodule), datamodule)
+
+
 def build_module(settings: TrainSettings, net: SVRNet, stage: str, datamodule: SVRDataModule) -> SVRLightningModule:
     """The LightningModule of one stage, from the loss and stage settings."""
     loss = settings.stage_loss(stage)
@@ -252,7 +271,7 @@ def train(settings: TrainSettings, run_dir: str | Path) -> TrainResult:
 
     pl.seed_everything(int(settings.seed), workers=True)
     datamodule = instantiate(settings.data)
-    settings = resolve_mirror_axis(settings, datamodule)
+    settings = resolve_model(settings, datamodule)
     net = instantiate(settings.model)
     if not isinstance(net, SVRNet):
         raise TypeError(f"model must instantiate a svr.models.SVRNet, got {type(net).__name__}")
@@ -320,4 +339,4 @@ def _stopped(trainer: pl.Trainer, stage: str, run: RunFolder, checkpoint: Option
 
 
 __all__ = ["train", "StageResult", "TrainResult", "TrainingStopped", "build_module", "build_scene",
-           "build_trainer", "plan_schedule"]
+           "build_trainer", "plan_schedule", "resolve_camera_elevation", "resolve_mirror_axis", "resolve_model"]

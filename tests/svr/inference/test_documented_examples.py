@@ -29,7 +29,7 @@ DOCUMENTED = ("docs/svr_inference.md", "README.md", "configs/infer.yaml")
 TINY_PIXEL = ["model=pixel", "model.encoder.channels=[8,16,32,32]", "model.encoder.latent_dim=64",
               "model.decoder.channels=[16,8,8]", "model.decoder.grid_resolution=32", "model.refiner.channels=[4,8]",
               "model.local.image_channels=[4,8,16]", "model.local.volume_channels=8", "model.local.hidden=16",
-              "model.local.mirror_axis=null"]
+              "model.local.mirror_axis=null", "model.camera.elevation=false"]
 
 
 @pytest.fixture(scope="module")

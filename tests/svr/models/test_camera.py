@@ -80,6 +80,8 @@ def test_the_head_is_a_plain_module_with_checked_arguments():
         ViewHead(channels=[])
     with pytest.raises(ValueError, match="crop_size"):
         ViewHead(crop_size=4)
+    with pytest.raises(ValueError, match="elevation must be true or false, got 'auto'"):
+        ViewHead(elevation="auto")
     for bad in (0, -1.0, float("nan")):
         with pytest.raises(ValueError, match="lr_scale must be"):
             ViewHead(lr_scale=bad)

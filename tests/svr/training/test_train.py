@@ -342,9 +342,17 @@ def test_pixel_model_trains_and_its_mirror_axis_is_measured_from_the_training_vo
     assert resolved.model["local"]["mirror_axis"] == expected
     assert settings.model["local"]["mirror_axis"] == "auto"  # the command's record keeps what was asked
 
+    # The camera head's elevation "auto": an output only where training draws extra views.
+    assert settings.model["camera"]["elevation"] == "auto"
+    assert stages.resolve_model(settings, dm).model["camera"]["elevation"] is False
+    dm.extra_view_share, share = 0.25, dm.extra_view_share
+    assert stages.resolve_camera_elevation(settings, dm).model["camera"]["elevation"] is True
+    dm.extra_view_share = share
+
     result = train(cfg, tmp_path / "run")
     ckpt = result.stages[0].best
     assert load_checkpoint(ckpt)["sdfdiff"]["model_config"]["local"]["mirror_axis"] == expected
+    assert load_checkpoint(ckpt)["sdfdiff"]["model_config"]["camera"]["elevation"] is False
     model = load_model(ckpt, "cpu")
     assert model.net.needs_views and model.net.local.mirror_axis == expected
     images = torch.stack([train_set.views(0, [3])[0]])
