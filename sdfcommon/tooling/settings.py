@@ -48,7 +48,7 @@ def _dataclasses_in(hint: Any) -> tuple[type, ...]:
     """The dataclasses an annotation's items may be, for a ``tuple[X, ...]``, ``list[X]`` or
     ``Sequence[X]`` annotation whose X is a dataclass or a Union of them; () for any other."""
     origin = typing.get_origin(hint)
-    if typing.get_origin(hint) is Union:  # Optional[tuple[...]]
+    if origin is Union:  # Optional[tuple[...]]
         inner = [a for a in typing.get_args(hint) if a is not type(None)]
         return _dataclasses_in(inner[0]) if len(inner) == 1 else ()
     if origin not in (tuple, list, collections.abc.Sequence):

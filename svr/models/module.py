@@ -248,6 +248,12 @@ class SVRLightningModule(pl.LightningModule):
                 p.grad = None
         self._skip_this_step = False
 
+    def _camera_apart(self, params: list[torch.nn.Parameter]) -> tuple[list[torch.nn.Parameter],
+                                                                         list[torch.nn.Parameter]]:
+        """``params`` split into the rest of the network's and the camera head's (none without one)."""
+        head = {id(p) for p in self.net.camera.parameters()} if self.net.camera is not None else set()
+        return [p for p in params if id(p) not in head], [p for p in params if id(p) in head]
+
     def configure_gradient_clipping(self, optimizer: torch.optim.Optimizer, gradient_clip_val=None,
                                     gradient_clip_algorithm=None) -> None:
         """Lightning's clipping, except that a camera head's gradients are clipped on their own: the
@@ -255,9 +261,7 @@ class SVRLightningModule(pl.LightningModule):
         if self.net.camera is None or not gradient_clip_val:
             self.clip_gradients(optimizer, gradient_clip_val, gradient_clip_algorithm)
             return
-        camera = {id(p) for p in self.net.camera.parameters()}
-        params = [p for group in optimizer.param_groups for p in group["params"]]
-        for part in ([p for p in params if id(p) not in camera], [p for p in params if id(p) in camera]):
+        for part in self._camera_apart([p for group in optimizer.param_groups for p in group["params"]]):
             if gradient_clip_algorithm in (None, "norm"):
                 torch.nn.utils.clip_grad_norm_(part, float(gradient_clip_val))
             else:
@@ -267,15 +271,12 @@ class SVRLightningModule(pl.LightningModule):
         params = self._trainable()
         if not params:
             raise ValueError(f"stage {self.stage!r} has no trainable parameters")
-        head = self.net.camera
-        scale = head.lr_scale if head is not None else 1.0
-        own = {id(p) for p in head.parameters()} if head is not None else set()
-        groups = ([p for p in params if id(p) not in own], [p for p in params if id(p) in own])
-        if scale != 1.0 and all(groups):
+        rest, head = self._camera_apart(params)
+        if head and rest and self.net.camera.lr_scale != 1.0:
             # The camera head's own group, at its own rate (Adam's steps are per weight, so the rest
             # train exactly as without it).
-            opt = self.optimizer_factory([{"params": groups[0]}, {"params": groups[1]}])
-            opt.param_groups[1]["lr"] = opt.defaults["lr"] * scale
+            opt = self.optimizer_factory([{"params": rest}, {"params": head}])
+            opt.param_groups[1]["lr"] = opt.defaults["lr"] * self.net.camera.lr_scale
         else:
             opt = self.optimizer_factory(params)
         if self.scheduler_factory is None:
