@@ -102,8 +102,7 @@ def test_the_first_layer_in_two_products_is_the_plain_one():
 
 def test_model_pixel_builds_trains_and_needs_views():
     with initialize_config_dir(config_dir=CONFIGS, version_base="1.3"):
-        cfg = compose("train", overrides=["model=pixel", "model.local.mirror_axis=0",
-                                              "model.camera.elevation=false"])
+        cfg = compose("train", overrides=["model=pixel", "model.local.mirror_axis=0", "model.camera.elevation=false"])
     net = instantiate(cfg.model)
     assert isinstance(net.local, PixelAlignedHead) and net.needs_views and net.local.mirror_axis == 0
     images = torch.rand(2, 4, 64, 64)

@@ -177,7 +177,8 @@ def test_a_camera_head_trains_in_every_stage_and_leaves_the_rest_as_without_it(t
     head = {k: v for k, v in coarse.items() if k.startswith("net.camera.") and v.is_floating_point()}
     assert head and any(not torch.equal(head[k], refine[k]) for k in head)  # it trained in refine too
     # Its own parameter group, at model.camera.lr_scale times the stage's rate (4 in model=pixel).
-    groups = load_checkpoint(tmp_path / "head" / "coarse" / "checkpoints" / "final.ckpt")["optimizer_states"][0]["param_groups"]
+    saved = load_checkpoint(tmp_path / "head" / "coarse" / "checkpoints" / "final.ckpt")
+    groups = saved["optimizer_states"][0]["param_groups"]
     assert len(groups) == 2 and groups[1]["lr"] == pytest.approx(4.0 * groups[0]["lr"])
     assert len(groups[1]["params"]) == len([k for k in head if not k.endswith(("running_mean", "running_var"))])
     with open(tmp_path / "head" / "coarse" / "csv" / "metrics.csv") as f:
