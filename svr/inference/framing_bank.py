@@ -152,8 +152,11 @@ class FramingBank:
         try:
             if int(record["side"]) != BANK_SIDE:
                 raise ValueError(f"silhouettes of side {record['side']}, this version compares {BANK_SIDE}")
-            bits = np.unpackbits(np.asarray(record["silhouettes"], dtype=np.uint8), axis=1)[:, :BANK_SIDE ** 2]
-            return cls(torch.from_numpy(bits.astype(bool)), torch.as_tensor(record["framings"], dtype=torch.float32),
+            # A checkpoint loaded onto a GPU holds the record's tensors there: read them on the host.
+            packed = torch.as_tensor(record["silhouettes"]).cpu().numpy().astype(np.uint8)
+            bits = np.unpackbits(packed, axis=1)[:, :BANK_SIDE ** 2]
+            return cls(torch.from_numpy(bits.astype(bool)),
+                       torch.as_tensor(record["framings"]).detach().to("cpu", torch.float32),
                        Framing(*(float(x) for x in record["framing"])))
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"{name}: not a readable framing bank ({err})") from None

@@ -131,6 +131,18 @@ def test_the_checkpoint_keeps_the_bank_and_infer_frames_by_it(tmp_path):
     assert isinstance(without.framing, Framing) and without.framing_source == "camera head"
 
 
+@pytest.mark.cuda
+def test_a_checkpoint_loaded_onto_the_gpu_reads_its_bank(tmp_path):
+    """load_model maps the checkpoint onto the GPU, the bank's record with it; the bank is read on
+    the host (a GPU demo stopped here: a CUDA tensor cannot become a numpy array)."""
+    ckpt = pixel_checkpoint(tmp_path)
+    bank = build_framing_bank(Views(shapes(48)))
+    store_framing_bank(ckpt, bank)
+    model = load_model(ckpt, "cuda")
+    assert torch.equal(model.framing_bank.silhouettes, bank.silhouettes)
+    assert torch.equal(model.framing_bank.framings, bank.framings)
+
+
 def test_scoring_banks_the_checkpoints_that_have_a_camera_head_once(tmp_path, capsys):
     from svr.scoring import bank_checkpoints
 
