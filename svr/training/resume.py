@@ -30,6 +30,14 @@ RESUME_KEY = "ckpt_path"  # names the run (or checkpoint) to go on with
 RESUMABLE_KEYS = (RESUME_KEY, "trainer.", "data.num_workers", "data.pin_memory", "data.progress",
                   "data.generation_workers", "stage.*.max_steps", "stage.*.max_time", "callbacks.progress_bar.")
 
+# Of those, what changes only what the run prints (progress bars): logged, not warned about.
+DISPLAY_KEYS = ("data.progress", "trainer.enable_progress_bar", "trainer.enable_model_summary", "callbacks.progress_bar")
+
+
+def _display_only(change: str) -> bool:
+    key = change.split(":", 1)[0]
+    return any(key == k or key.startswith(k + ".") for k in DISPLAY_KEYS)
+
 
 def _may_change(key: str) -> bool:
     parts = key.split(".")
@@ -173,7 +181,8 @@ def resumed_settings(settings: TrainSettings, run: RunFolder, overrides: Sequenc
 def continued_settings(settings: TrainSettings, run: RunFolder, overrides: Sequence[str],
                        defaults: Optional[DictConfig] = None) -> tuple[TrainSettings, dict]:
     """The settings a run already in ``run`` goes on with: its saved ``config.yaml`` with the
-    changes the command line may make (``resume_config``; each logged as a warning), and the record
+    changes the command line may make (``resume_config``; each logged as a warning, or as
+    information where it changes only the output's progress bars, ``DISPLAY_KEYS``), and the record
     to write back (keeping the ``ckpt_path`` the run started from). Settings the saved run did not
     know yet take their values from ``defaults`` (the composed config of the run's own groups,
     ``run_defaults``), else from ``settings``."""
@@ -181,7 +190,7 @@ def continued_settings(settings: TrainSettings, run: RunFolder, overrides: Seque
     requested = defaults if defaults is not None else OmegaConf.create(settings_record(settings))
     merged, changes = resume_config(saved, requested, overrides)
     for change in changes:
-        log.warning("resuming %s with a changed setting: %s", run.root, change)
+        (log.info if _display_only(change) else log.warning)("resuming %s with a changed setting: %s", run.root, change)
     record = OmegaConf.to_container(merged, resolve=True)
     resumed = build_settings(record)
     record["ckpt_path"] = saved.get("ckpt_path")

@@ -125,6 +125,31 @@ def test_sigterm_during_validation_resumes_exactly(tmp_path, data_overrides):
                  "stopped during validation")
 
 
+def test_a_resume_that_only_hides_the_progress_bars_warns_about_nothing(tmp_path, data_overrides, caplog):
+    """`python -m svr.demo eval_only=true quiet=true` on a run trained with progress bars: the
+    changes are logged, but as information, not as warnings; a real change still warns."""
+    import logging
+
+    from svr.demo import QUIET_OVERRIDES
+    from svr.training.resume import continued_settings
+
+    folder = RunFolder(tmp_path / "run")
+    folder.root.mkdir()
+    bars = ["trainer.enable_progress_bar=true", "data.progress=true"]  # the run was trained with them
+    OmegaConf.save(compose_train(tiny_overrides(data_overrides, 5, *bars)), folder.config)
+    quiet = [*QUIET_OVERRIDES]
+    with caplog.at_level(logging.INFO, logger="svr.training.resume"):
+        continued_settings(None, folder, quiet, compose_train([*tiny_overrides(data_overrides, 5), *quiet]))
+    changed = [r for r in caplog.records if "with a changed setting" in r.getMessage()]
+    assert changed and all(r.levelno == logging.INFO for r in changed)
+    caplog.clear()
+    longer = ["stage.coarse.max_steps=9", *quiet]
+    with caplog.at_level(logging.INFO, logger="svr.training.resume"):
+        continued_settings(None, folder, longer, compose_train([*tiny_overrides(data_overrides, 5), *longer]))
+    warned = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warned) == 1 and "stage.coarse.max_steps: 5 -> 9" in warned[0]
+
+
 def test_resume_config_keeps_the_run_and_names_what_may_not_change(data_overrides):
     saved = compose_train(tiny_overrides(data_overrides, 5))
     again = compose_train(tiny_overrides(data_overrides, 2))  # the defaults of a new command differ
