@@ -16,10 +16,15 @@ image can do (its ground truth is still predicted in the canonical frame, as eve
 object box as predictions are (``svr.nmr.voxels.clip_to_box``), through the protocol, the
 ceiling of what a model with that grid can score (procedural data only, since it needs the
 analytic shapes). ``score_baselines`` returns their per-image IoU, aligned with an
-``svr.evaluation.tables.EvaluationResult``'s images.
+``svr.evaluation.tables.EvaluationResult``'s images; ``score_baselines_and_sides`` also their
+side-view IoU (``svr.nmr.side_views``: the silhouettes from the views 90 degrees either side of
+the input) where a baseline has side views to show (``SIDE_BASELINES``): a retrieved training
+object its stored alpha in those views, a category's mean shape its render from them. That puts a
+model's side views beside what looking the shape up, or knowing only the category, gives.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
@@ -30,9 +35,13 @@ from sdfcommon.tooling.checks import check_int, check_shape
 from svr.data.procedural.generator import dataset_shape, is_procedural_dataset
 from svr.nmr.format import NUM_VIEWS
 from svr.nmr.metrics import voxel_iou, voxels_protocol
+from svr.nmr.side_views import render_silhouettes, side_views, silhouette_iou
 from svr.nmr.voxels import clip_to_box, voxels_to_sdf
 
 BASELINES: tuple[str, ...] = ("mean_shape", "category_mean_shape", "retrieval", "retrieval_any_view", "oracle")
+# The baselines scored from the side too: one shape per image that can be seen from other views (the
+# oracle's side views are the truth's; the global mean shape shows nothing a category's does not).
+SIDE_BASELINES: tuple[str, ...] = ("category_mean_shape", "retrieval", "retrieval_any_view")
 LABELS: Mapping[str, str] = {
     "mean_shape": "mean shape",
     "category_mean_shape": "category mean shape",
@@ -294,8 +303,62 @@ def _retrieved_iou(train, found: np.ndarray, glob: np.ndarray, gt: Mapping[int, 
     return ious
 
 
+def _stored_side_iou(train, objects, found: np.ndarray, glob: np.ndarray, views: np.ndarray) -> np.ndarray:
+    """(M,) side-view IoU of each retrieved training object (``found``): its stored alpha in the
+    image's two side views against the image's object's (both at 0.5), mean of the two. One side
+    view of every object of both splits in memory at a time."""
+    sides = side_views(torch.as_tensor(np.asarray(views, dtype=np.int64))).numpy()
+    out = np.zeros(len(glob), dtype=np.float64)
+    for s in np.unique(sides):
+        rows = np.flatnonzero((sides == s).any(axis=1))  # a view is one side of an image, never both
+        pred = torch.from_numpy(train.silhouettes(int(s))[found[rows]] >= 128)
+        true = torch.from_numpy(objects.silhouettes(int(s))[glob[rows]] >= 128)
+        out[rows] += silhouette_iou(pred, true).numpy()
+    return out / 2.0
+
+
+def _rendered_side_iou(shapes: Mapping[int, torch.Tensor], category: np.ndarray, objects, glob: np.ndarray,
+                       views: np.ndarray) -> np.ndarray:
+    """(M,) side-view IoU of one voxel shape per category (``shapes``, NMR frame; ``category`` the
+    image's): its signed distance grid rendered from the image's side views, as a prediction is."""
+    renders = {}
+    for c, vox in shapes.items():
+        values, _, hi = voxels_to_sdf(vox.numpy())
+        sdf = torch.from_numpy(values).float()[None]
+        renders[c] = render_silhouettes(sdf, hi, torch.arange(NUM_VIEWS)[None])[0]  # (24, 64, 64)
+    sides = side_views(torch.as_tensor(np.asarray(views, dtype=np.int64))).numpy()
+    out = np.zeros(len(glob), dtype=np.float64)
+    for s in np.unique(sides):
+        rows = np.flatnonzero((sides == s).any(axis=1))
+        true = torch.from_numpy(objects.silhouettes(int(s))[glob[rows]] >= 128)
+        pred = torch.stack([renders[int(c)][int(s)] for c in category[rows]])
+        out[rows] += silhouette_iou(pred, true).numpy()
+    return out / 2.0
+
+
+@dataclass(frozen=True)
+class BaselineScores:
+    """Per-image scores of the baselines on an evaluation's images.
+
+    Attributes:
+        iou: baseline name -> (M,) float64 benchmark IoU.
+        side_iou: baseline name (of ``SIDE_BASELINES``) -> (M,) float64 side-view silhouette IoU.
+    """
+
+    iou: dict[str, np.ndarray]
+    side_iou: dict[str, np.ndarray] = field(default_factory=dict)
+
+
 def score_baselines(names: Sequence[str], result, objects, train, half_side: float, grid_resolution: int,
                     progress: bool = True) -> dict[str, np.ndarray]:
+    """Per-image IoU of each baseline on the images an evaluation scored: ``score_baselines_and_sides``'s
+    IoU alone (the arguments are its)."""
+    return score_baselines_and_sides(names, result, objects, train, half_side, grid_resolution, progress,
+                                     sides=False).iou
+
+
+def score_baselines_and_sides(names: Sequence[str], result, objects, train, half_side: float, grid_resolution: int,
+                              progress: bool = True, sides: bool = True) -> BaselineScores:
     """Per-image IoU of each baseline on the images an evaluation scored.
 
     The two mean shapes are predicted as SDFs and go through the protocol (marching cubes, the
@@ -310,8 +373,9 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
         objects: the evaluated split's dataset; train: the training split of the same data
             (same categories, same order).
         half_side, grid_resolution: the model's grid (for the oracle).
+        sides: also the side-view IoU of the ``SIDE_BASELINES`` among ``names``.
     Returns:
-        {name: (M,) float64 IoU}, M = the result's images, in its order.
+        the scores; each array has M = the result's images entries, in its order.
     """
     names = check_baselines(names)
     if [c for c, _ in getattr(train, "categories", [])] != [c for c, _ in result.categories]:
@@ -320,6 +384,7 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
     uniq = np.unique(glob)
     gt = {int(g): objects.voxels(int(g)) for g in uniq}
     out: dict[str, np.ndarray] = {}
+    side: dict[str, np.ndarray] = {}
 
     def per_object(pred_of: Callable[[int], torch.Tensor]) -> np.ndarray:
         score = {g: float(voxel_iou(pred_of(g), gt[g])) for g in gt}
@@ -332,6 +397,8 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
         elif name == "category_mean_shape":
             shapes = category_mean_shapes(train)
             out[name] = per_object(lambda g: shapes[objects.category_of(g)])
+            if sides:
+                side[name] = _rendered_side_iou(shapes, np.asarray(result.category), objects, glob, result.view)
         elif name == "retrieval":
             found = np.empty(len(glob), dtype=np.int64)
             with tqdm(total=len(glob), desc="retrieval baseline", unit="img", disable=not progress) as bar:
@@ -340,12 +407,16 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
                     queries = np.stack([objects.images_uint8(int(g), [int(v)])[0, 3] for g in glob[sel]])
                     found[sel] = retrieve(train, queries, result.view[sel], progress=bar.update)
             out[name] = _retrieved_iou(train, found, glob, gt)
+            if sides:
+                side[name] = _stored_side_iou(train, objects, found, glob, result.view)
         elif name == "retrieval_any_view":
             queries = _query_alphas(objects, glob, result.view)
             with tqdm(total=NUM_VIEWS, desc="retrieval (any view) baseline", unit="view",
                       disable=not progress) as bar:
                 found = retrieve_any_view(train, queries, progress=bar.update)
             out[name] = _retrieved_iou(train, found, glob, gt)
+            if sides:
+                side[name] = _stored_side_iou(train, objects, found, glob, result.view)
         elif name == "oracle":
             if not is_procedural_dataset(objects.root):
                 continue
@@ -356,8 +427,8 @@ def score_baselines(names: Sequence[str], result, objects, train, half_side: flo
                 return oracle_voxels(objects.root, result.categories[c][0], split, o, half_side, grid_resolution)
 
             out[name] = per_object(oracle)
-    return out
+    return BaselineScores(out, side)
 
 
-__all__ = ["BASELINES", "LABELS", "DESCRIPTIONS", "READS", "check_baselines", "protocol_voxels_of_voxels", "mean_shape",
+__all__ = ["BASELINES", "SIDE_BASELINES", "BaselineScores", "score_baselines_and_sides", "LABELS", "DESCRIPTIONS", "READS", "check_baselines", "protocol_voxels_of_voxels", "mean_shape",
            "category_mean_shapes", "retrieve", "retrieve_any_view", "oracle_voxels", "score_baselines"]

@@ -26,7 +26,7 @@ from svr.data.datasets import EvalViews
 from svr.data.samplers import EvalShardSampler
 from svr.data.types import SVRBatch, collate_batch
 from svr.distributed import RankInfo, gather_uneven
-from svr.evaluation.baselines import check_baselines, score_baselines
+from svr.evaluation.baselines import check_baselines, score_baselines_and_sides
 from svr.evaluation.tables import EvaluationResult
 from svr.inference.prediction import LoadedModel, check_model, predict_sdf
 from svr.nmr.format import NUM_VIEWS, check_split, is_nmr_shapenet
@@ -252,7 +252,8 @@ def evaluate(model: LoadedModel, datamodule, split: str = "test", batch_size: Op
 
 def add_baselines(result: EvaluationResult, datamodule, names: Sequence[str], model: LoadedModel,
                   progress: bool = True) -> EvaluationResult:
-    """The result with the baselines (``svr.evaluation.baselines``) scored on the same images and split.
+    """The result with the baselines (``svr.evaluation.baselines``) scored on the same images and split,
+    and from the side (``SIDE_BASELINES``) where the result's side views are scored.
 
     Args:
         datamodule: the evaluated data module (its training split feeds the baselines).
@@ -263,9 +264,11 @@ def add_baselines(result: EvaluationResult, datamodule, names: Sequence[str], mo
     names = check_baselines(names)
     if not names:
         return result
-    scores = score_baselines(names, result, datamodule.dataset(result.split), datamodule.dataset("train"),
-                             model.half_side, model.grid_resolution, progress=progress)
-    return dataclasses.replace(result, baselines={**result.baselines, **scores})
+    scores = score_baselines_and_sides(names, result, datamodule.dataset(result.split), datamodule.dataset("train"),
+                                       model.half_side, model.grid_resolution, progress=progress,
+                                       sides=result.side_iou is not None)
+    return dataclasses.replace(result, baselines={**result.baselines, **scores.iou},
+                               baseline_side_iou={**result.baseline_side_iou, **scores.side_iou})
 
 
 __all__ = ["evaluate", "evaluate_objects", "add_baselines", "model_reads"]

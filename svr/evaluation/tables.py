@@ -76,6 +76,8 @@ class EvaluationResult:
             of the input (``svr.nmr.side_views``), or None where not scored.
         baselines: baseline name (``svr.evaluation.baselines.BASELINES``) -> (M,) float64 IoU on the same images
             (``add_baselines``).
+        baseline_side_iou: baseline name (``svr.evaluation.baselines.SIDE_BASELINES``) -> (M,) float64
+            side-view silhouette IoU on the same images (``add_baselines``, where ``side_iou`` is scored).
         views_per_object: views evaluated per object (24 for the protocol).
         full_protocol: every view of every object was evaluated (no thinning).
         seconds: wall time.
@@ -106,6 +108,7 @@ class EvaluationResult:
     calibration: Optional[str] = None
     side_iou: Optional[np.ndarray] = None
     reads: Optional[str] = None
+    baseline_side_iou: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def table(self) -> IoUTable:
@@ -124,6 +127,10 @@ class EvaluationResult:
     def baseline_table(self, name: str) -> IoUTable:
         """Per-category IoU of a baseline on the same images."""
         return iou_table(self.baselines[name], self.category, self.categories)
+
+    def baseline_side_table(self, name: str) -> IoUTable:
+        """Per-category side-view silhouette IoU of a baseline on the same images."""
+        return iou_table(self.baseline_side_iou[name], self.category, self.categories)
 
     def minus_retrieval(self) -> Optional[IoUTable]:
         """Per category, our IoU minus the retrieval baseline's (None without that baseline)."""
@@ -177,6 +184,8 @@ class EvaluationResult:
                 row["side_iou_mean"] = float(self.side_iou[sel].mean())
             for name, values in self.baselines.items():
                 row[f"iou_{name}_mean"] = float(values[sel].mean())
+            for name, values in self.baseline_side_iou.items():
+                row[f"side_iou_{name}_mean"] = float(values[sel].mean())
             rows.append(row)
         rows.sort(key=lambda r: (r["iou_mean"], r["category_id"], r["object_index"]))
         return rows
@@ -217,6 +226,9 @@ class EvaluationResult:
         side = self.side_table
         if side is not None:
             out["side_views"] = {"description": SIDE_VIEWS_DESCRIPTION, **summary(side)}
+            if self.baseline_side_iou:
+                out["side_views"]["baselines"] = {name: {"label": LABELS[name], **summary(self.baseline_side_table(name))}
+                                                  for name in self.baseline_side_iou}
         if self.baselines:
             out["baselines"] = {name: {"label": LABELS[name], "description": DESCRIPTIONS[name],
                                        "reads": READS[name], **summary(self.baseline_table(name))}
@@ -345,8 +357,12 @@ def format_table(result: EvaluationResult, extra_rows: ExtraRows = None, label: 
     lines = [title, ""] + _markdown(header, rows) + [""] + [f"- {n}" for n in table_notes(result)]
     side = result.side_table
     if side is not None:
-        side_row = _iou_row(label or f"ours ({result.output})", side, result.present)
-        lines += ["", f"Side views: {SIDE_VIEWS_DESCRIPTION}.", ""] + _markdown(header, [side_row])
+        side_rows = [_iou_row(label or f"ours ({result.output})", side, result.present)]
+        side_rows += [_iou_row(LABELS[name], result.baseline_side_table(name), result.present)
+                      for name in result.baseline_side_iou]
+        note = (" Baselines: a retrieved training object shows its stored silhouettes in those views, a "
+                "category's mean shape its render." if result.baseline_side_iou else "")
+        lines += ["", f"Side views: {SIDE_VIEWS_DESCRIPTION}.{note}", ""] + _markdown(header, side_rows)
     return "\n".join(lines) + "\n"
 
 
@@ -379,11 +395,13 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
     }
     obj_columns = ["category_id", "category", "object_index", "views", "iou_mean", "iou_min", "worst_view"] + (
         ["iou_coarse_mean"] if result.iou_coarse is not None else []) + (
-        ["side_iou_mean"] if result.side_iou is not None else []) + [f"iou_{n}_mean" for n in result.baselines]
+        ["side_iou_mean"] if result.side_iou is not None else []) + [f"iou_{n}_mean" for n in result.baselines] + [
+        f"side_iou_{n}_mean" for n in result.baseline_side_iou]
     files["per_object"] = write_csv(folder / "per_object.csv", result.per_object(), obj_columns)
     img_columns = ["category_id", "category", "object_index", "view", "iou"] + (
         ["iou_coarse"] if result.iou_coarse is not None else []) + (
-        ["side_iou"] if result.side_iou is not None else []) + [f"iou_{n}" for n in result.baselines]
+        ["side_iou"] if result.side_iou is not None else []) + [f"iou_{n}" for n in result.baselines] + [
+        f"side_iou_{n}" for n in result.baseline_side_iou]
     img_rows = []
     for i in range(len(result.iou)):
         cid, name = result.categories[int(result.category[i])]
@@ -395,6 +413,8 @@ def write_report(result: EvaluationResult, output_dir: PathLike, extra_rows: Ext
             row["side_iou"] = float(result.side_iou[i])
         for n, values in result.baselines.items():
             row[f"iou_{n}"] = float(values[i])
+        for n, values in result.baseline_side_iou.items():
+            row[f"side_iou_{n}"] = float(values[i])
         img_rows.append(row)
     files["per_image"] = write_csv(folder / "per_image.csv", img_rows, img_columns)
     return files

@@ -12,9 +12,9 @@ import torch
 
 from svr.data.datasets import NMRDataset
 from svr.data.procedural.generator import dataset_shape
-from svr.evaluation.baselines import (BASELINES, READS, category_mean_shapes, check_baselines, mean_shape,
-                                      oracle_voxels, protocol_voxels_of_voxels, retrieve, retrieve_any_view,
-                                      score_baselines)
+from svr.evaluation.baselines import (BASELINES, READS, SIDE_BASELINES, category_mean_shapes, check_baselines,
+                                      mean_shape, oracle_voxels, protocol_voxels_of_voxels, retrieve,
+                                      retrieve_any_view, score_baselines, score_baselines_and_sides)
 from svr.evaluation.protocol import model_reads
 from svr.evaluation.tables import EvaluationResult, format_table, table_rows, write_report
 from svr.inference.calibration import Calibration
@@ -207,6 +207,40 @@ def test_retrieval_any_view_scores_rotated_copies_exactly(tmp_path):
     assert scores["retrieval_any_view"][~copy].max() < 0.5
 
 
+def test_side_views_of_a_retrieved_object_are_its_stored_silhouettes(tmp_path):
+    """A retrieved training object's side-view IoU compares its stored alpha in the two views 90
+    degrees either side of the input with the image's object's: 1 for an identical copy, and for
+    any other pair the mean of the two silhouette IoUs, computed here by hand."""
+    ids = [NMR_CATEGORIES[0][0], NMR_CATEGORIES[4][0]]
+    arrays = _write_nmr_folder(tmp_path, {ids[0]: {"train": 3, "test": 2}, ids[1]: {"train": 2, "test": 1}})
+    for k in range(2):  # test object 0 of the first category is training object 2
+        arrays[(ids[0], "test")][k][0] = arrays[(ids[0], "train")][k][2]
+    _save(tmp_path, arrays)
+    prepare_nmr(tmp_path, categories=ids, splits=("train", "test"), progress=False)
+    train, test = NMRDataset(tmp_path, "train", categories=ids), NMRDataset(tmp_path, "test", categories=ids)
+    result = _result_over(test, [0, 7, 20])
+    scores = score_baselines_and_sides(["retrieval", "mean_shape", "oracle"], result, test, train, 0.6, 64,
+                                       progress=False)
+    assert list(scores.side_iou) == ["retrieval"]  # the others have no side views to show (SIDE_BASELINES)
+    side = scores.side_iou["retrieval"]
+    copy = (result.category == 0) & (result.object_index == 0)
+    np.testing.assert_array_equal(side[copy], 1.0)
+    glob = np.asarray(test.offsets)[result.category] + result.object_index
+    alphas = [test.images_uint8(int(g), [int(v)])[0, 3] for g, v in zip(glob, result.view)]
+    found = retrieve(train, np.stack(alphas), result.view)
+    for i in np.flatnonzero(~copy):
+        ious = []
+        for s in ((result.view[i] + 6) % 24, (result.view[i] - 6) % 24):  # 7 -> 13 and 1; 20 -> 2 and 14
+            a = train.images_uint8(int(found[i]), [int(s)])[0, 3] >= 128
+            b = test.images_uint8(int(glob[i]), [int(s)])[0, 3] >= 128
+            ious.append((a & b).sum() / (a | b).sum())
+        assert side[i] == pytest.approx(np.mean(ious), abs=1e-12)
+    assert side[~copy].max() < 0.5  # random silhouettes of density 0.4 overlap by about 0.25
+    assert score_baselines(["retrieval"], result, test, train, 0.6, 64, progress=False).keys() == {"retrieval"}
+    assert not score_baselines_and_sides(["retrieval"], result, test, train, 0.6, 64, progress=False,
+                                         sides=False).side_iou
+
+
 def test_oracle_and_baselines_on_procedural_data(tiny_procedural):
     """The oracle is the exact shape on the model's grid: at least 0.97 at 64^3 against the default
     (protocol) ground truth, lower on a coarser grid; every baseline gives one IoU per image."""
@@ -214,8 +248,14 @@ def test_oracle_and_baselines_on_procedural_data(tiny_procedural):
     assert settings.voxel_rule == "protocol"
     test, train = NMRDataset(root, "test"), NMRDataset(root, "train")
     result = _result_over(test, [0, 5])
-    scores = score_baselines(BASELINES, result, test, train, 0.6, 64, progress=False)
-    assert list(scores) == list(BASELINES)
+    both = score_baselines_and_sides(BASELINES, result, test, train, 0.6, 64, progress=False)
+    scores = both.iou
+    assert list(scores) == list(BASELINES) and list(both.side_iou) == list(SIDE_BASELINES)
+    for name, values in both.side_iou.items():
+        assert values.shape == result.iou.shape and np.all((values >= 0) & (values <= 1)), name
+    # The category's mean shape, rendered, looks from the side like its objects (rendered, not
+    # random silhouettes): more than a little overlap.
+    assert both.side_iou["category_mean_shape"].mean() > 0.3
     for name, values in scores.items():
         assert values.shape == result.iou.shape and np.all((values >= 0) & (values <= 1)), name
     assert scores["oracle"].min() >= 0.97
@@ -265,6 +305,29 @@ def test_baselines_are_rows_of_the_table_with_ours_minus_retrieval(tmp_path):
     assert summary["baselines"]["retrieval"]["mean"] == pytest.approx(0.55)
     assert summary["ours_minus_retrieval"]["categories"]["bench"] == pytest.approx(-0.1)
     assert "iou_retrieval" in files["per_image"].read_text().splitlines()[0]
+
+
+def test_baselines_seen_from_the_side_are_rows_of_the_side_view_table(tmp_path):
+    res = dataclasses.replace(_fake(nmr=False), side_iou=np.array([0.7, 0.9, 0.6, 0.8]),
+                              baseline_side_iou={"retrieval": np.array([0.5, 0.7, 0.4, 0.4])})
+    text = format_table(res)
+    side = text[text.index("Side views:"):]
+    assert "a retrieved training object shows its stored silhouettes" in side
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in side.splitlines() if line.startswith("| ")}
+    assert rows["ours (refined)"] == ["0.8000", "0.7000", "0.7500"]
+    assert rows["retrieval"] == ["0.6000", "0.4000", "0.5000"]
+    files = write_report(res, tmp_path)
+    summary = json.loads(files["json"].read_text())
+    assert summary["side_views"]["mean"] == pytest.approx(0.75)
+    assert summary["side_views"]["baselines"]["retrieval"]["mean"] == pytest.approx(0.5)
+    assert summary["side_views"]["baselines"]["retrieval"]["categories"]["airplane"] == pytest.approx(0.6)
+    assert "side_iou_retrieval" in files["per_image"].read_text().splitlines()[0]
+    assert "side_iou_retrieval_mean" in files["per_object"].read_text().splitlines()[0]
+    # Without baselines seen from the side, the side-view table is ours alone.
+    plain = format_table(dataclasses.replace(res, baseline_side_iou={}))
+    assert "stored silhouettes" not in plain and "| retrieval" in plain.split("Side views:")[0]
+    assert "| retrieval" not in plain.split("Side views:")[1]
 
 
 def test_notes_say_what_each_row_reads(tmp_path):
