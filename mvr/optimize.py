@@ -55,9 +55,10 @@ class OptimSettings:
             ``carve_tolerance`` voxels (``ViewLosses.carve``): whatever the fit grew outside the
             cones of the views' silhouettes goes (not in the paper; docs/mvr_method.md).
         carve_tolerance: how far (voxels of the level) the shape may reach outside the hull.
-        cameras: refine each camera's pose (a turn about its eye and a shift, ``CameraPoses``) with
+        cameras: refine each camera's pose (an orbit about the origin, a distance and an aim, ``CameraPoses``) with
             the shape, by the render's camera gradient (not in the paper; for inexact cameras).
-        camera_lr: Adam's step for the poses (radians for the turn, world units for the shift).
+        camera_lr: Adam's step for the poses (radians for the orbit and the aim, the log of the
+            distance; ``CameraPoses``).
         camera_levels: the cameras are refined in the schedule's last ``camera_levels`` levels
             (earlier, the coarse shape's errors would be put into the cameras).
     """
@@ -86,7 +87,7 @@ class OptimSettings:
     carve: bool = True
     carve_tolerance: float = 1.0
     cameras: bool = False
-    camera_lr: float = 0.01
+    camera_lr: float = 0.003
     camera_levels: int = 1
 
     def __post_init__(self) -> None:
@@ -207,49 +208,68 @@ def fill_cavities(values: torch.Tensor) -> torch.Tensor:
 
 
 class CameraPoses:
-    """Corrections of V camera poses, refined with the shape (``OptimSettings.cameras``): per camera
-    a rotation vector (a turn about its eye, world axes, radians) and a shift of its eye (world),
-    both zero at the start, with their own Adam (step ``lr``). Each camera's pair is a parameter of
-    its own, so an update moves only the cameras whose views were rendered since the last one
-    (Adam would move the others on their old momentum, were they one tensor with zero gradients).
+    """Corrections of V camera poses, refined with the shape (``OptimSettings.cameras``). Per camera:
+    an orbit (a rotation vector about the scene's origin that turns the eye and the camera's axes
+    together: the camera sees the object from another side), a change of its distance to the origin
+    (the log of the factor), and an aim (a turn about its own eye, world axes, radians). All are
+    zero at the start and have their own Adam (step ``lr``). The basis matters: an eye shifted
+    sideways and the camera turned to keep the object in the frame move the image almost alike, so
+    a correction in those terms climbs a narrow valley (measured, docs/mvr_noise.md); orbit, distance
+    and aim each move it differently (parallax, scale, a shift of the whole image). Each camera's
+    corrections are parameters of their own, so an update moves only the cameras whose views were
+    rendered since the last one (Adam would move the others on their old momentum, were they one
+    tensor with zero gradients).
     """
+
+    PARAMETERISATION = "orbit-distance-aim"
 
     def __init__(self, views: int, lr: float):
         check_int(views, "views", minimum=1)
         check_positive(lr, "camera_lr")
-        self.rotations = [torch.zeros(3, dtype=torch.float64, requires_grad=True) for _ in range(views)]
-        self.translations = [torch.zeros(3, dtype=torch.float64, requires_grad=True) for _ in range(views)]
-        self.opt = torch.optim.Adam(self.rotations + self.translations, lr=lr)
+        self.orbits = [torch.zeros(3, dtype=torch.float64, requires_grad=True) for _ in range(views)]
+        self.distances = [torch.zeros(1, dtype=torch.float64, requires_grad=True) for _ in range(views)]
+        self.aims = [torch.zeros(3, dtype=torch.float64, requires_grad=True) for _ in range(views)]
+        self.opt = torch.optim.Adam(self.orbits + self.distances + self.aims, lr=lr)
 
     @property
-    def rotation(self) -> torch.Tensor:
-        """(V, 3) the rotation vectors (detached)."""
-        return torch.stack([r.detach() for r in self.rotations])
+    def orbit(self) -> torch.Tensor:
+        """(V, 3) the orbits' rotation vectors (detached)."""
+        return torch.stack([r.detach() for r in self.orbits])
 
     @property
-    def translation(self) -> torch.Tensor:
-        """(V, 3) the shifts of the eyes (detached)."""
-        return torch.stack([t.detach() for t in self.translations])
+    def distance(self) -> torch.Tensor:
+        """(V,) the logs of the distance factors (detached)."""
+        return torch.cat([d.detach() for d in self.distances])
+
+    @property
+    def aim(self) -> torch.Tensor:
+        """(V, 3) the aims' rotation vectors (detached)."""
+        return torch.stack([r.detach() for r in self.aims])
 
     def apply(self, cameras: Cameras, views: torch.Tensor) -> Cameras:
-        """``cameras[views]`` of all V cameras, turned and shifted by their corrections
-        (differentiable in them while grad is enabled)."""
-        if cameras.batch_size != len(self.rotations):
-            raise ValueError(f"{cameras.batch_size} cameras for {len(self.rotations)} pose corrections")
+        """``cameras[views]`` of all V cameras, orbited, moved along their line to the origin and
+        turned by their corrections (differentiable in them while grad is enabled)."""
+        if cameras.batch_size != len(self.orbits):
+            raise ValueError(f"{cameras.batch_size} cameras for {len(self.orbits)} pose corrections")
         index = [int(v) for v in views.reshape(-1).tolist()]
-        rot = torch.stack([self.rotations[v] for v in index]).to(cameras.dtype)
-        shift = torch.stack([self.translations[v] for v in index]).to(cameras.dtype)
-        return cameras[views].moved(rot, shift)
+        cams = cameras[views]
+        orbit = torch.stack([self.orbits[v] for v in index]).to(cams.dtype)
+        log_distance = torch.stack([self.distances[v] for v in index]).to(cams.dtype)
+        aim = torch.stack([self.aims[v] for v in index]).to(cams.dtype)
+        turn = torch.linalg.matrix_exp(_skew(orbit))  # (K, 3, 3)
+        eye = (turn @ cams.eye[..., None])[..., 0] * torch.exp(log_distance)
+        return cams.moved(orbit, eye - cams.eye).moved(aim)
 
     def step(self) -> None:
         """One Adam update of the cameras that received a gradient, then their gradients cleared,
-        then the mean turn and the mean shift of all cameras removed: moving every camera alike is
-        moving the shape the other way, which the images cannot tell apart (the rig's corrections
-        of camera noise average out)."""
+        then the mean orbit and the mean change of distance of all cameras removed: every camera
+        orbited alike is the shape turned the other way, every distance scaled alike the shape
+        scaled, which the images cannot tell apart (the rig's corrections of camera noise average
+        out)."""
         self.opt.step()
         self.opt.zero_grad(set_to_none=True)
         with torch.no_grad():
-            for group in (self.rotations, self.translations):
+            for group in (self.orbits, self.distances):
                 mean = torch.stack([p.detach() for p in group]).mean(0)
                 for p in group:
                     p.sub_(mean)
@@ -261,16 +281,29 @@ class CameraPoses:
 
     def state(self) -> dict:
         """The corrections and Adam's state (for a checkpoint)."""
-        return {"rotation": self.rotation.clone(), "translation": self.translation.clone(),
-                "adam": self.opt.state_dict()}
+        return {"parameterisation": self.PARAMETERISATION, "orbit": self.orbit.clone(),
+                "distance": self.distance.clone(), "aim": self.aim.clone(), "adam": self.opt.state_dict()}
 
     def load(self, state: dict) -> None:
-        """Restores ``state()``'s corrections and Adam's state."""
+        """Restores ``state()``'s corrections and Adam's state; ValueError for the state of another
+        parameterisation (a checkpoint of an earlier version)."""
+        if state.get("parameterisation") != self.PARAMETERISATION:
+            raise ValueError("the checkpoint's camera corrections are of an earlier version (a turn and a shift "
+                             "of each eye); resume=false starts the run afresh")
         with torch.no_grad():
-            for k, (r, t) in enumerate(zip(self.rotations, self.translations)):
-                r.copy_(state["rotation"][k])
-                t.copy_(state["translation"][k])
+            for k, (o, d, a) in enumerate(zip(self.orbits, self.distances, self.aims)):
+                o.copy_(state["orbit"][k])
+                d.copy_(state["distance"][k:k + 1])
+                a.copy_(state["aim"][k])
         self.opt.load_state_dict(state["adam"])
+
+
+def _skew(r: torch.Tensor) -> torch.Tensor:
+    """(K, 3) rotation vectors -> (K, 3, 3) their cross-product matrices."""
+    zero = torch.zeros_like(r[:, 0])
+    return torch.stack([torch.stack([zero, -r[:, 2], r[:, 1]], -1),
+                        torch.stack([r[:, 2], zero, -r[:, 0]], -1),
+                        torch.stack([-r[:, 1], r[:, 0], zero], -1)], -2)
 
 
 class ViewLosses:

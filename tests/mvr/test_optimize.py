@@ -63,7 +63,8 @@ def test_view_losses_bad_input(problem):
 
 def test_camera_poses_move_only_the_rendered_cameras_and_keep_no_common_motion():
     """CameraPoses: zero corrections give the cameras back; an update moves the cameras whose
-    views had a gradient, then the common turn and shift of all are removed; its state restores."""
+    views had a gradient, then the common orbit and distance of all are removed; its state
+    restores, and a state of the earlier parameterisation is refused."""
     cams = RigSettings().cameras(8).to(dtype=torch.float64)
     poses = CameraPoses(26, lr=0.01)
     same = poses.apply(cams, torch.arange(26))
@@ -72,23 +73,66 @@ def test_camera_poses_move_only_the_rendered_cameras_and_keep_no_common_motion()
     moved = poses.apply(cams, torch.tensor([3, 7]))
     (moved.eye[:, 0].sum() + moved.forward[:, 1].sum()).backward()
     poses.step()
-    changed = (poses.rotation.norm(dim=1) + poses.translation.norm(dim=1)) > 0
+    changed = (poses.orbit.norm(dim=1) + poses.distance.abs() + poses.aim.norm(dim=1)) > 0
     assert changed[[3, 7]].all()
-    torch.testing.assert_close(poses.translation.mean(0), torch.zeros(3, dtype=torch.float64), atol=1e-15, rtol=0)
-    torch.testing.assert_close(poses.rotation.mean(0), torch.zeros(3, dtype=torch.float64), atol=1e-15, rtol=0)
-    # the others moved only by the common part removed: all alike
+    torch.testing.assert_close(poses.orbit.mean(0), torch.zeros(3, dtype=torch.float64), atol=1e-15, rtol=0)
+    torch.testing.assert_close(poses.distance.mean(0), torch.zeros((), dtype=torch.float64), atol=1e-15, rtol=0)
+    # the others moved only by the common part removed: all alike, and none of them was aimed
     others = [v for v in range(26) if v not in (3, 7)]
-    assert torch.equal(poses.translation[others], poses.translation[others[:1]].expand(len(others), 3))
+    assert torch.equal(poses.orbit[others], poses.orbit[others[:1]].expand(len(others), 3))
+    assert torch.equal(poses.aim[others], torch.zeros(len(others), 3, dtype=torch.float64))
+    assert poses.aim[[3, 7]].norm(dim=1).min() > 0
     state = poses.state()
     again = CameraPoses(26, lr=0.01)
     again.load(state)
-    assert torch.equal(again.rotation, poses.rotation) and torch.equal(again.translation, poses.translation)
+    assert torch.equal(again.orbit, poses.orbit) and torch.equal(again.distance, poses.distance)
+    assert torch.equal(again.aim, poses.aim)
+    with pytest.raises(ValueError, match="earlier version"):
+        again.load({"rotation": state["orbit"], "translation": state["orbit"], "adam": state["adam"]})
     with pytest.raises(ValueError, match="26 cameras for 4 pose corrections"):
         CameraPoses(4, lr=0.01).apply(cams, torch.arange(4))
     with pytest.raises(ValueError, match="camera_levels must be"):
         OptimSettings(cameras=True, camera_levels=0)
     with pytest.raises(TypeError, match="cameras must be true or false"):
         OptimSettings(cameras="yes")
+
+
+def test_camera_corrections_are_an_orbit_a_distance_and_an_aim():
+    """Each correction moves the camera as its name says: an orbit turns the eye about the origin
+    with the camera's axes (still looking at the origin), a distance moves the eye along its line to
+    the origin, an aim turns the axes about a fixed eye."""
+    import math
+
+    cams = RigSettings().cameras(8).to(dtype=torch.float64)
+    v = torch.tensor([0])
+    base = cams[v]
+    look = -base.eye[0] / base.eye[0].norm()
+    torch.testing.assert_close(base.forward[0], look, atol=1e-12, rtol=0)  # the rig looks at the origin
+
+    poses = CameraPoses(26, lr=0.01)
+    axis = torch.linalg.cross(base.eye[0], base.up[0])
+    with torch.no_grad():
+        poses.orbits[0].copy_(0.3 * axis / axis.norm())  # an axis through the origin, across the view
+    c = poses.apply(cams, v)
+    torch.testing.assert_close(c.eye[0].norm(), base.eye[0].norm(), atol=1e-12, rtol=0)
+    torch.testing.assert_close(c.forward[0], -c.eye[0] / c.eye[0].norm(), atol=1e-12, rtol=0)
+    cos = float((c.eye[0] * base.eye[0]).sum().detach() / base.eye[0].norm() ** 2)
+    assert cos == pytest.approx(math.cos(0.3), abs=1e-12)  # the eye went 0.3 radians round the origin
+
+    poses = CameraPoses(26, lr=0.01)
+    with torch.no_grad():
+        poses.distances[0].fill_(math.log(1.5))
+    c = poses.apply(cams, v)
+    torch.testing.assert_close(c.eye[0], 1.5 * base.eye[0], atol=1e-12, rtol=0)
+    torch.testing.assert_close(c.forward[0], base.forward[0], atol=1e-12, rtol=0)
+
+    poses = CameraPoses(26, lr=0.01)
+    with torch.no_grad():
+        poses.aims[0].copy_(0.2 * base.up[0])  # a turn about the camera's up axis
+    c = poses.apply(cams, v)
+    torch.testing.assert_close(c.eye[0], base.eye[0], atol=0, rtol=0)
+    torch.testing.assert_close(c.up[0], base.up[0], atol=1e-12, rtol=0)
+    assert float((c.forward[0] * base.forward[0]).sum()) == pytest.approx(math.cos(0.2), abs=1e-12)
 
 
 def test_carving_removes_what_lies_outside_the_visual_hull():

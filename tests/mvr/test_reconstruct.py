@@ -205,7 +205,7 @@ def test_refined_cameras_are_checkpointed_and_resumed(tmp_path):
                   evaluation=ScoringSettings(samples=500), progress=False)
     first = reconstruct("torus", tmp_path, **kwargs)
     ckpt = torch.load(tmp_path / "checkpoints" / "level_01.pt", weights_only=False)
-    assert ckpt["poses"]["translation"].abs().sum() > 0
+    assert ckpt["poses"]["orbit"].abs().sum() > 0 and ckpt["poses"]["aim"].abs().sum() > 0
     (tmp_path / "checkpoints" / "level_02.pt").unlink()
     again = reconstruct("torus", tmp_path, **kwargs)
     assert again.metrics["resumed_from_level"] == 1
@@ -216,3 +216,12 @@ def test_refined_cameras_are_checkpointed_and_resumed(tmp_path):
     assert m["camera_eye_error_final"] != m["camera_eye_error_given"]  # the cameras moved
     plain = reconstruct("torus", tmp_path / "plain", **{**kwargs, "optim": OptimSettings(max_passes=1)})
     assert plain.metrics["camera_eye_error_final"] == plain.metrics["camera_eye_error_given"]
+    # A checkpoint of the earlier parameterisation (a turn and a shift of each eye) is refused
+    # before anything is written, naming the file.
+    old = {**ckpt, "poses": {"rotation": torch.zeros(26, 3), "translation": torch.zeros(26, 3), "adam": {}}}
+    torch.save(old, tmp_path / "checkpoints" / "level_01.pt")
+    (tmp_path / "checkpoints" / "level_02.pt").unlink()
+    stamp = (tmp_path / "metrics.json").stat().st_mtime_ns
+    with pytest.raises(ValueError, match="level_01.pt.*earlier version.*resume=false"):
+        reconstruct("torus", tmp_path, **kwargs)
+    assert (tmp_path / "metrics.json").stat().st_mtime_ns == stamp
