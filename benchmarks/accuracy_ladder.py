@@ -150,8 +150,10 @@ def ladder(objects: dict[str, dict[tuple[str, int], dict[str, float]]], lookup: 
                  for c, name in enumerate(categories) if c in per_cat}
         rows[key] = {"label": label, "categories": table,
                      "mean": float(np.mean([r["iou"] for r in table.values()])), "interval": overall}
-        if source is not None and source[1] == "iou_mean" and "side_iou_mean" in objects[source[0]][keys[0]]:
-            side = np.array([objects[source[0]][k]["side_iou_mean"] for k in keys])
+        # Side views where the run scored them: a network's own (side_iou_mean) or a baseline's
+        # (side_iou_<baseline>_mean, svr.evaluation.baselines.SIDE_BASELINES).
+        if source is not None and f"side_{source[1]}" in objects[run][keys[0]]:
+            side = np.array([objects[run][k][f"side_{source[1]}"] for k in keys])
             _, side_interval = bootstrap_means(side, cat)
             rows[key]["side_views"] = {"mean": float(np.mean([side[cat == c].mean() for c in np.unique(cat)])),
                                        "interval": side_interval}
@@ -204,6 +206,13 @@ def reading(summary: dict) -> str:
         if a in m and b in m:
             out.append(f"- {summary['rows'][a]['label']} - {summary['rows'][b]['label']}: "
                        f"**{m[a] - m[b]:+.3f}**: {what}.")
+    side = {k: r["side_views"]["mean"] for k, r in summary["rows"].items() if "side_views" in r}
+    for a, b, what in (("shipped", "retrieval", "the network's depth against a retrieved training object's"),
+                       ("camera_free", "retrieval_any_view", "the image-only network's depth against a "
+                                                             "camera-free lookup's")):
+        if a in side and b in side:
+            out.append(f"- side views, {summary['rows'][a]['label']} - {summary['rows'][b]['label']}: "
+                       f"**{side[a] - side[b]:+.3f}**: {what}.")
     if "voxels" in m and "shipped" in m and m["voxels"] < m["shipped"]:
         out.append("- the 3D-supervised row is below the shipped recipe: its loss (`svr.losses.voxel_loss`) trains "
                    "this network worse than the silhouettes do, so the row does not yet measure what the "
@@ -290,8 +299,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             f"Command: `{command.strip()}` ({seconds / 60:.1f} min this time; training: {trained}).\n\n"
             f"{machine_info()}\n\nTest split, {summary['objects']} objects, all 24 views each, scored by the "
             f"benchmark protocol; the interval is a 95% bootstrap over test objects (resampled within each "
-            f"category). Side views: the trained rows' silhouette IoU from the views 90 degrees either side of the "
-            f"input (`svr.nmr.side_views`; mean over categories, interval as above). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}`"
+            f"category). Side views: the silhouette IoU from the views 90 degrees either side of the "
+            f"input (`svr.nmr.side_views`; mean over categories, interval as above), of the trained rows and of the "
+            f"baselines whose evaluation scored them (`svr.evaluation.baselines.SIDE_BASELINES`). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}`"
             f"{' (+ `loss=voxels` for the 3D-supervised one)' if 'voxels' in args.rows else ''}"
             f"{camera_free}"
             f"{' with ' + ' '.join(args.overrides) if args.overrides else ''}."

@@ -70,9 +70,18 @@ def test_side_views_column_for_the_trained_rows():
     side = summary["rows"]["shipped"]["side_views"]
     assert side["mean"] == pytest.approx((0.3 + 0.9) / 2)  # chair (0.2 + 0.4) / 2, table 0.9
     assert side["interval"][0] <= side["mean"] <= side["interval"][1]
-    assert "side_views" not in summary["rows"]["retrieval"]  # baselines have no SDF to render
+    assert "side_views" not in summary["rows"]["retrieval"]  # that evaluation scored no baseline's side views
     table = markdown_table(summary)
     assert f"| {side['mean']:.3f} [" in table and table.count("|  |\n") == len(summary["rows"]) - 1
+    # An evaluation that scored retrieval's side views too (side_iou_retrieval_mean) fills its row.
+    for row, side in zip(shipped.values(), (0.1, 0.3, 0.5)):
+        row["side_iou_retrieval_mean"] = side
+    summary = ladder({"shipped": shipped}, {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6},
+                     ["chair", "table"])
+    assert summary["rows"]["retrieval"]["side_views"]["mean"] == pytest.approx((0.2 + 0.5) / 2)
+    assert "side views, shipped recipe (image losses, reads the camera) - silhouette retrieval: **+0.250**" \
+        in reading(summary)  # (0.3 + 0.9) / 2 - 0.35
+    assert "side_views" not in summary["rows"]["category_mean_shape"]
 
 
 def test_camera_free_rows():
