@@ -321,12 +321,15 @@ def _rendered_side_iou(shapes: Mapping[int, torch.Tensor], category: np.ndarray,
                        views: np.ndarray) -> np.ndarray:
     """(M,) side-view IoU of one voxel shape per category (``shapes``, NMR frame; ``category`` the
     image's): its signed distance grid rendered from the image's side views, as a prediction is."""
+    sides = side_views(torch.as_tensor(np.asarray(views, dtype=np.int64))).numpy()
+    if not len(sides):
+        return np.zeros(0, dtype=np.float64)
+    size = objects.silhouettes(int(sides[0, 0])).shape[-1]  # rendered at the stored images' size
     renders = {}
     for c, vox in shapes.items():
         values, _, hi = voxels_to_sdf(vox.numpy())
         sdf = torch.from_numpy(values).float()[None]
-        renders[c] = render_silhouettes(sdf, hi, torch.arange(NUM_VIEWS)[None])[0]  # (24, 64, 64)
-    sides = side_views(torch.as_tensor(np.asarray(views, dtype=np.int64))).numpy()
+        renders[c] = render_silhouettes(sdf, hi, torch.arange(NUM_VIEWS)[None], image_size=size)[0]  # (24, S, S)
     out = np.zeros(len(glob), dtype=np.float64)
     for s in np.unique(sides):
         rows = np.flatnonzero((sides == s).any(axis=1))

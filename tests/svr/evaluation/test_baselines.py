@@ -241,6 +241,26 @@ def test_side_views_of_a_retrieved_object_are_its_stored_silhouettes(tmp_path):
                                          sides=False).side_iou
 
 
+def test_a_category_mean_is_rendered_at_the_stored_images_size():
+    """Built datasets may store 128^2 images: the mean shape is rendered at the stored size; an
+    object whose stored side views are that shape's own renders scores 1 from the side."""
+    from svr.evaluation.baselines import _rendered_side_iou
+    from svr.nmr.side_views import render_silhouettes
+    from svr.nmr.voxels import voxels_to_sdf
+
+    cube = torch.zeros(32, 32, 32, dtype=torch.bool)
+    cube[8:24, 12:20, 4:28] = True  # a box, longer along one axis: its side views differ
+    values, _, hi = voxels_to_sdf(cube.numpy())
+    own = render_silhouettes(torch.from_numpy(values).float()[None], hi, torch.arange(24)[None], image_size=32)[0]
+
+    class Stored:  # two objects: the shape's own renders, and an empty one
+        def silhouettes(self, view):
+            return np.stack([own[view].numpy().astype(np.uint8) * 255, np.zeros((32, 32), np.uint8)])
+
+    side = _rendered_side_iou({0: cube}, np.array([0, 0, 0]), Stored(), np.array([0, 0, 1]), np.array([0, 5, 0]))
+    np.testing.assert_allclose(side, [1.0, 1.0, 0.0])
+
+
 def test_oracle_and_baselines_on_procedural_data(tiny_procedural):
     """The oracle is the exact shape on the model's grid: at least 0.97 at 64^3 against the default
     (protocol) ground truth, lower on a coarser grid; every baseline gives one IoU per image."""
