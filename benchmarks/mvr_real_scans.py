@@ -253,9 +253,9 @@ def run_one(mesh: PreparedMesh, config: str, out: Path, fresh: bool, error_scale
 
 
 def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: Optional[Path], command: str,
-                 goal: float, error_scale: float) -> None:
+                 goal: float, error_scale: float, seed: str = "0") -> None:
     """OUT/table.md, table.csv, results.json; and DOCS/mvr_real_scans.md with the default
-    configuration's error pictures copied beside it."""
+    configuration's error pictures copied beside it (``seed``: the runs' seed, as ``--extra`` set it)."""
     table = markdown_table(rows, configs)
     outputs.write_csv(out / "table.csv", list(rows), COLUMNS)
     outputs.write_json(out / "results.json", {"command": command, "configs": {c: list(CONFIGS[c]) for c in configs},
@@ -266,7 +266,7 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
         f"`{command}`",
         "",
         "The mesh folder holds CGAL's scans from Debian's `libcgal-demo` package (README.md, multi-view "
-        "section, gives the commands); each mesh is reconstructed once per configuration (seed 0).",
+        f"section, gives the commands); each mesh is reconstructed once per configuration (seed {seed}).",
         "",
         "H: symmetric Hausdorff distance, H99: its 99th percentile (both sides' samples pooled), C: "
         "Chamfer distance, all relative to the target's bounding-box diagonal (50k samples per surface; "
@@ -354,7 +354,8 @@ def main(argv: Optional[list[str]] = None) -> None:
             print(f"{mesh.name} [{config}]: H {row.get('hausdorff_rel')} C {row.get('chamfer_rel')} "
                   f"{row.get('seconds')} s ({time.perf_counter() - t0:.0f} s this call, load {load_average()}) "
                   f"{row.get('note', '')}", flush=True)
-    write_tables(rows, args.configs, out, docs, command, args.goal, args.error_scale)
+    seed = next((e.split("=", 1)[1] for e in args.extra if e.startswith("seed=")), "0")  # configs/mvr.yaml: 0
+    write_tables(rows, args.configs, out, docs, command, args.goal, args.error_scale, seed)
     print(f"wrote {out / 'table.md'}" + (f" and {docs / 'mvr_real_scans.md'}" if docs else ""))
     if any(r.get("hausdorff_rel") is not None and not math.isfinite(r["hausdorff_rel"]) for r in rows):
         sys.exit(1)

@@ -117,7 +117,7 @@ def test_toy_run_writes_table_pictures_and_reuses_runs(tmp_path, monkeypatch):
     trimesh.creation.icosphere(subdivisions=2, radius=0.5).export(folder / "ball.ply")
     out, docs = tmp_path / "out", tmp_path / "docs"
     argv = [str(folder), "--shapes", "--configs", "default", "paper", "--out", str(out), "--docs", str(docs),
-            "--extra", *QUICK]
+            "--extra", *QUICK, "seed=3"]
     torch.manual_seed(0)
     module.main(argv)
     for name in ("table.md", "table.csv", "results.json"):
@@ -128,6 +128,7 @@ def test_toy_run_writes_table_pictures_and_reuses_runs(tmp_path, monkeypatch):
     assert (out / "paper" / "ball" / "errors.png").stat().st_size > 1000
     text = (docs / "mvr_real_scans.md").read_text()
     assert "| ball |" in text and "mvr_errors_ball.png" in text and (docs / "mvr_errors_ball.png").is_file()
+    assert "once per configuration (seed 3)" in text  # --extra's seed (was always printed as 0)
 
     def no_rerun(*args, **kwargs):
         raise AssertionError("a finished run must be reused")
