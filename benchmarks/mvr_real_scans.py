@@ -44,7 +44,7 @@ from sdfcommon.tooling.settings import build_settings
 
 CONFIGS = {"default": (), "paper": ("mvr/preset=paper",), "visibility": ("scene.gradient=visibility",),
            "carve": ("optim.carve=true",), "l1": ("optim.image_loss=l1",),
-           "l1_pyramid": ("optim.image_loss=l1", "optim.image_levels=4")}
+           "l1_pyramid": ("optim.image_loss=l1", "optim.image_levels=4"), "fine": ("mvr/preset=fine",)}
 # Paper section 5, symmetric Hausdorff relative to the bounding box (SPEC.md section 2).
 PAPER = {"torus": 0.015637, "bunny": 0.026654, "dragon": 0.074723}
 COLUMNS = ("mesh", "config", "hausdorff_rel", "hausdorff99_rel", "chamfer_rel", "seconds", "pass_seconds",

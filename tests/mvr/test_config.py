@@ -82,6 +82,14 @@ def test_paper_preset_restores_the_papers_settings():
     assert over["trace"].threshold_scale == 0.3
 
 
+def test_fine_preset_is_the_defaults_with_a_finer_last_level():
+    fine = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "mvr/preset=fine"]))
+    default = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused"]))
+    assert fine["schedule"].grid_resolutions() == [8, 16, 32, 48, 96]
+    assert default["schedule"].grid_resolutions() == [8, 16, 32, 64]
+    assert {k: v for k, v in fine.items() if k != "schedule"} == {k: v for k, v in default.items() if k != "schedule"}
+
+
 def test_threads_default_to_every_core():
     from mvr.runtime import available_cores, configure_runtime
 
