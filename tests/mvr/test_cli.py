@@ -176,7 +176,7 @@ def test_help_lists_the_shapes_and_both_groups(monkeypatch, capsys):
     text = capsys.readouterr().out
     shapes = next(line for line in text.splitlines() if "sphere" in line and "torus" in line)
     assert all(name in shapes for name in SHAPES), shapes
-    assert "mvr/preset: default, paper" in text and "mvr/noise: camera, image, none" in text
+    assert "mvr/preset: default, fine, paper" in text and "mvr/noise: camera, image, none" in text
 
 
 def _stop_during(level_number: int, signum: int):

@@ -132,7 +132,7 @@ def test_camera_corrections_are_an_orbit_a_distance_and_an_aim():
     c = poses.apply(cams, v)
     torch.testing.assert_close(c.eye[0], base.eye[0], atol=0, rtol=0)
     torch.testing.assert_close(c.up[0], base.up[0], atol=1e-12, rtol=0)
-    assert float((c.forward[0] * base.forward[0]).sum()) == pytest.approx(math.cos(0.2), abs=1e-12)
+    assert float((c.forward[0] * base.forward[0]).sum().detach()) == pytest.approx(math.cos(0.2), abs=1e-12)
 
 
 def test_carving_removes_what_lies_outside_the_visual_hull():
