@@ -51,7 +51,7 @@ def test_the_head_learns_views_from_known_cameras_wherever_the_object_sits():
     """Trained on centred pointers of the 24 directions, the head names the direction of pointers
     moved and scaled as in no training image, far above chance (1 in 24)."""
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the run's float sums, hence its result, depend on the thread count
+    torch.set_num_threads(2)  # the run's float sums, hence its result, depend on the thread count
     try:
         _learn_views_and_framing()
     finally:
@@ -81,10 +81,10 @@ def _learn_views_and_framing() -> None:
     # The framing cannot come from the crop alone (it forgets the size): the head can only give a
     # typical framing, here within a few pixels of the training images'. This guards the framing
     # output (units, order of its fields), not its accuracy: on these images it is 1.4 to 4.1 pixels
-    # off by seed and thread count (4.1 with seed 0 on one thread), an untrained head 1.8 and the
-    # training images' median framing 1.0 (svr.inference.framing_bank does better on photos).
+    # off by seed and thread count (1.8 with seed 0 on two threads, 4.1 on one), an untrained head
+    # 1.8 and the training images' median framing 1.0 (svr.inference.framing_bank does better on photos).
     _, truth = normalise_crops(train)
-    assert float((head.estimate(train).framing - truth).abs().median() * 64) < 6.0
+    assert float((head.estimate(train).framing - truth).abs().median() * 64) < 4.0
 
 
 def test_the_head_is_a_plain_module_with_checked_arguments():
