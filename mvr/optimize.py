@@ -17,6 +17,7 @@ import torch
 from tqdm.auto import tqdm
 
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
+from renderer.cameras import rotation_matrices
 
 from sdfcommon.numerics.hull import signed_pixel_distance, visual_hull
 from sdfcommon.numerics.regularisers import band_regularisers, box_face_eikonal_sum
@@ -256,7 +257,7 @@ class CameraPoses:
         orbit = torch.stack([self.orbits[v] for v in index]).to(cams.dtype)
         log_distance = torch.stack([self.distances[v] for v in index]).to(cams.dtype)
         aim = torch.stack([self.aims[v] for v in index]).to(cams.dtype)
-        turn = torch.linalg.matrix_exp(_skew(orbit))  # (K, 3, 3)
+        turn = rotation_matrices(orbit)  # (K, 3, 3)
         eye = (turn @ cams.eye[..., None])[..., 0] * torch.exp(log_distance)
         return cams.moved(orbit, eye - cams.eye).moved(aim)
 
@@ -296,14 +297,6 @@ class CameraPoses:
                 d.copy_(state["distance"][k:k + 1])
                 a.copy_(state["aim"][k])
         self.opt.load_state_dict(state["adam"])
-
-
-def _skew(r: torch.Tensor) -> torch.Tensor:
-    """(K, 3) rotation vectors -> (K, 3, 3) their cross-product matrices."""
-    zero = torch.zeros_like(r[:, 0])
-    return torch.stack([torch.stack([zero, -r[:, 2], r[:, 1]], -1),
-                        torch.stack([r[:, 2], zero, -r[:, 0]], -1),
-                        torch.stack([-r[:, 1], r[:, 0], zero], -1)], -2)
 
 
 class ViewLosses:

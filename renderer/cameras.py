@@ -51,6 +51,18 @@ def _vec3(x, name: str, dtype: torch.dtype, device) -> torch.Tensor:
     return t
 
 
+def rotation_matrices(rotation: torch.Tensor) -> torch.Tensor:
+    """(B, 3) rotation vectors (the direction the axis, the length the angle in radians) -> (B, 3, 3)
+    rotation matrices, by the exponential of their cross-product matrices (exact, and
+    differentiable at 0)."""
+    r = rotation
+    zero = torch.zeros_like(r[:, 0])
+    skew = torch.stack([torch.stack([zero, -r[:, 2], r[:, 1]], -1),
+                        torch.stack([r[:, 2], zero, -r[:, 0]], -1),
+                        torch.stack([-r[:, 1], r[:, 0], zero], -1)], -2)
+    return torch.linalg.matrix_exp(skew)
+
+
 def _normalize(v: torch.Tensor) -> torch.Tensor:
     return v / v.norm(dim=-1, keepdim=True)
 
@@ -253,11 +265,7 @@ class Cameras:
             r = r.expand(b, 3) if r.shape == (3,) else r
             if r.shape != (b, 3):
                 raise ValueError(f"rotation must have shape (3,) or ({b}, 3), got {tuple(r.shape)}")
-            zero = torch.zeros_like(r[:, 0])
-            skew = torch.stack([torch.stack([zero, -r[:, 2], r[:, 1]], -1),
-                                torch.stack([r[:, 2], zero, -r[:, 0]], -1),
-                                torch.stack([-r[:, 1], r[:, 0], zero], -1)], -2)
-            rot = torch.linalg.matrix_exp(skew)  # (B, 3, 3), exact and differentiable at 0
+            rot = rotation_matrices(r)  # (B, 3, 3)
             forward, right, up = ((rot @ v[..., None])[..., 0] for v in (forward, right, up))
         if translation is not None:
             t = torch.as_tensor(translation, dtype=self.dtype, device=self.device)

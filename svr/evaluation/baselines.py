@@ -303,40 +303,41 @@ def _retrieved_iou(train, found: np.ndarray, glob: np.ndarray, gt: Mapping[int, 
     return ious
 
 
-def _stored_side_iou(train, objects, found: np.ndarray, glob: np.ndarray, views: np.ndarray) -> np.ndarray:
-    """(M,) side-view IoU of each retrieved training object (``found``): its stored alpha in the
-    image's two side views against the image's object's (both at 0.5), mean of the two. One side
-    view of every object of both splits in memory at a time."""
+def _side_iou(objects, glob: np.ndarray, views: np.ndarray,
+              predicted: Callable[[int, np.ndarray], torch.Tensor]) -> np.ndarray:
+    """(M,) mean silhouette IoU over each image's two side views (``svr.nmr.side_views``) of a
+    baseline's silhouettes, ``predicted(view, rows)`` -> (len(rows), S, S) bool for the images
+    ``rows`` seen from ``view``, against the stored alpha of the images' objects (at 0.5). One side
+    view of every object of the split in memory at a time."""
     sides = side_views(torch.as_tensor(np.asarray(views, dtype=np.int64))).numpy()
     out = np.zeros(len(glob), dtype=np.float64)
     for s in np.unique(sides):
         rows = np.flatnonzero((sides == s).any(axis=1))  # a view is one side of an image, never both
-        pred = torch.from_numpy(train.silhouettes(int(s))[found[rows]] >= 128)
         true = torch.from_numpy(objects.silhouettes(int(s))[glob[rows]] >= 128)
-        out[rows] += silhouette_iou(pred, true).numpy()
+        out[rows] += silhouette_iou(predicted(int(s), rows), true).numpy()
     return out / 2.0
+
+
+def _stored_side_iou(train, objects, found: np.ndarray, glob: np.ndarray, views: np.ndarray) -> np.ndarray:
+    """(M,) side-view IoU of each retrieved training object (``found``): its stored alpha in the
+    image's two side views."""
+    return _side_iou(objects, glob, views, lambda s, rows: torch.from_numpy(train.silhouettes(s)[found[rows]] >= 128))
 
 
 def _rendered_side_iou(shapes: Mapping[int, torch.Tensor], category: np.ndarray, objects, glob: np.ndarray,
                        views: np.ndarray) -> np.ndarray:
     """(M,) side-view IoU of one voxel shape per category (``shapes``, NMR frame; ``category`` the
-    image's): its signed distance grid rendered from the image's side views, as a prediction is."""
-    sides = side_views(torch.as_tensor(np.asarray(views, dtype=np.int64))).numpy()
-    if not len(sides):
+    image's): its signed distance grid rendered from the image's side views, as a prediction is, at
+    the stored images' size."""
+    if not len(glob):
         return np.zeros(0, dtype=np.float64)
-    size = objects.silhouettes(int(sides[0, 0])).shape[-1]  # rendered at the stored images' size
+    size = objects.silhouettes(0).shape[-1]
     renders = {}
     for c, vox in shapes.items():
         values, _, hi = voxels_to_sdf(vox.numpy())
         sdf = torch.from_numpy(values).float()[None]
         renders[c] = render_silhouettes(sdf, hi, torch.arange(NUM_VIEWS)[None], image_size=size)[0]  # (24, S, S)
-    out = np.zeros(len(glob), dtype=np.float64)
-    for s in np.unique(sides):
-        rows = np.flatnonzero((sides == s).any(axis=1))
-        true = torch.from_numpy(objects.silhouettes(int(s))[glob[rows]] >= 128)
-        pred = torch.stack([renders[int(c)][int(s)] for c in category[rows]])
-        out[rows] += silhouette_iou(pred, true).numpy()
-    return out / 2.0
+    return _side_iou(objects, glob, views, lambda s, rows: torch.stack([renders[int(c)][s] for c in category[rows]]))
 
 
 @dataclass(frozen=True)
