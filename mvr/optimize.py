@@ -16,8 +16,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from renderer import Cameras, Scene, SDFGrid, TraceSettings, render
-from renderer.cameras import rotation_matrices
+from renderer import Cameras, Scene, SDFGrid, TraceSettings, render, rotation_matrices
 
 from sdfcommon.numerics.hull import signed_pixel_distance, visual_hull
 from sdfcommon.numerics.regularisers import band_regularisers, box_face_eikonal_sum

@@ -17,7 +17,7 @@ import os as _os
 _os.environ.setdefault("THP_MEM_ALLOC_ENABLE", "1")
 
 from .backends import backend_available, stage2_available  # noqa: E402
-from .cameras import NMR_DISTANCE, NMR_ELEVATION_DEG, NMR_FOV_DEG, NMR_NUM_VIEWS, Cameras  # noqa: E402
+from .cameras import NMR_DISTANCE, NMR_ELEVATION_DEG, NMR_FOV_DEG, NMR_NUM_VIEWS, Cameras, rotation_matrices  # noqa: E402
 from .examples import torus_and_sphere  # noqa: E402
 from .grid import SDFGrid  # noqa: E402
 from .kernels import start_cpu_thread_pool  # noqa: E402
@@ -32,6 +32,7 @@ from .trace import sphere_trace  # noqa: E402
 __all__ = [
     "SDFGrid",
     "Cameras",
+    "rotation_matrices",
     "NMR_DISTANCE",
     "NMR_ELEVATION_DEG",
     "NMR_FOV_DEG",
