@@ -284,12 +284,18 @@ class CameraPoses:
         return {"parameterisation": self.PARAMETERISATION, "orbit": self.orbit.clone(),
                 "distance": self.distance.clone(), "aim": self.aim.clone(), "adam": self.opt.state_dict()}
 
+    @classmethod
+    def check_state(cls, state, where: str) -> None:
+        """ValueError naming ``where`` unless ``state`` is a ``state()`` of this parameterisation (a
+        checkpoint of an earlier version holds a turn and a shift of each eye)."""
+        if not isinstance(state, dict) or state.get("parameterisation") != cls.PARAMETERISATION:
+            raise ValueError(f"{where} holds camera corrections of an earlier version (a turn and a shift of each "
+                             f"eye); resume=false starts this run afresh")
+
     def load(self, state: dict) -> None:
         """Restores ``state()``'s corrections and Adam's state; ValueError for the state of another
         parameterisation (a checkpoint of an earlier version)."""
-        if state.get("parameterisation") != self.PARAMETERISATION:
-            raise ValueError("the checkpoint's camera corrections are of an earlier version (a turn and a shift "
-                             "of each eye); resume=false starts the run afresh")
+        self.check_state(state, "the checkpoint")
         with torch.no_grad():
             for k, (o, d, a) in enumerate(zip(self.orbits, self.distances, self.aims)):
                 o.copy_(state["orbit"][k])

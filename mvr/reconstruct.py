@@ -183,11 +183,8 @@ def _load_resume_point(out_dir: Path, fingerprint: str, n_levels: int) -> Option
         raise ValueError(
             f"out_dir {str(out_dir)!r} holds checkpoints of a run with other settings ({found[-1].name}); "
             f"use another out_dir, or resume=false to start this one afresh")
-    poses = ckpt.get("poses")
-    if poses is not None and (not isinstance(poses, dict)
-                              or poses.get("parameterisation") != CameraPoses.PARAMETERISATION):
-        raise ValueError(f"checkpoint {str(found[-1])!r} holds camera corrections of an earlier version (a turn "
-                         f"and a shift of each eye); resume=false starts this run afresh")
+    if ckpt.get("poses") is not None:
+        CameraPoses.check_state(ckpt["poses"], f"checkpoint {str(found[-1])!r}")
     number = int(ckpt["level"])
     if not 1 <= number <= n_levels:
         raise ValueError(f"checkpoint {str(found[-1])!r} is for level {number}, not one of the schedule's levels "
