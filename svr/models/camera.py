@@ -8,12 +8,14 @@ weights are apart from the rest of the network's, so its loss leaves their train
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional, Sequence
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
 from sdfcommon.tooling.checks import check_float, check_int
+from svr.models.checkpoint_layout import check_stage
 from svr.nmr.format import NUM_VIEWS
 # The crop's longest side fills this share of the square (a margin for the anti-aliased edge).
 CROP_FILL = 0.9
@@ -101,11 +103,19 @@ class ViewHead(nn.Module):
             elevations than NMR's 30 degrees, teaches it anything: ``data.extra_views``).
         lr_scale: its learning rate as a multiple of the stage's (its own parameter group in
             ``SVRLightningModule.configure_optimizers``; the schedule scales both alike).
+        stages: the training stages it learns in (None: every stage); in the others it is frozen
+            and costs nothing.
     """
 
     def __init__(self, channels: tuple[int, ...] | list[int] = (32, 64, 128), crop_size: int = 32,
-                 train_views: int = 4, elevation: bool = False, lr_scale: float = 1.0) -> None:
+                 train_views: int = 4, elevation: bool = False, lr_scale: float = 1.0,
+                 stages: Optional[Sequence[str]] = None) -> None:
         super().__init__()
+        if stages is not None:
+            if isinstance(stages, str) or not stages:
+                raise ValueError(f"stages must be null or a non-empty list of stages, got {stages!r}")
+            stages = tuple(check_stage(str(s)) for s in stages)
+        self.stages = stages
         check_int(crop_size, "crop_size", minimum=8)
         check_int(train_views, "train_views", minimum=1)
         self.train_views = int(train_views)
@@ -173,6 +183,10 @@ class ViewHead(nn.Module):
         if elevation is not None:
             elevation = (ELEVATION_CENTRE + ELEVATION_SCALE * elevation).clamp(-89.0, 89.0)
         return ViewEstimate(probabilities=logits.softmax(dim=1), framing=framing, elevation=elevation)
+
+    def trains_in(self, stage: str) -> bool:
+        """Whether the head learns in training stage ``stage``."""
+        return self.stages is None or stage in self.stages
 
 
 __all__ = ["CROP_FILL", "ViewEstimate", "ViewHead", "normalise_crops"]

@@ -110,11 +110,12 @@ class SVRLightningModule(pl.LightningModule):
     @property
     def frozen_modules(self) -> tuple[torch.nn.Module, ...]:
         """The submodules this stage does not train."""
+        head = (self.net.camera,) if self.net.camera is not None and not self.net.camera.trains_in(self.stage) else ()
         if self.stage == "coarse":
-            return (self.net.refiner,)
+            return (self.net.refiner, *head)
         if self.stage == "refine":
-            return tuple(m for m in (self.net.encoder, self.net.decoder, self.net.local) if m is not None)
-        return ()
+            return tuple(m for m in (self.net.encoder, self.net.decoder, self.net.local) if m is not None) + head
+        return head
 
     def apply_stage(self) -> None:
         """Sets ``requires_grad`` and batch-norm modes for ``self.stage``."""
@@ -217,7 +218,7 @@ class SVRLightningModule(pl.LightningModule):
         if terms is not None:
             for name, value in terms.as_dict().items():
                 self.log(f"train/{name}", value.detach(), batch_size=bs, prog_bar=name == "total", sync_dist=True)
-            if self.net.camera is not None:
+            if self.net.camera is not None and self.net.camera.trains_in(self.stage):
                 # The batch's first views (random but the input), with their known cameras; the
                 # head's weights are its own.
                 k = self.net.camera.train_views

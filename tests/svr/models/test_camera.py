@@ -97,6 +97,11 @@ def test_the_head_is_a_plain_module_with_checked_arguments():
     for bad in (0, -1.0, float("nan")):
         with pytest.raises(ValueError, match="lr_scale must be"):
             ViewHead(lr_scale=bad)
+    for bad in ("coarse", [], ["coarse", "fine"]):
+        with pytest.raises(ValueError, match="stage"):
+            ViewHead(stages=bad)
+    assert ViewHead().trains_in("refine") and ViewHead(stages=["coarse"]).trains_in("coarse")
+    assert not ViewHead(stages=["coarse"]).trains_in("joint")
     logits, framing = ViewHead()(torch.rand(3, 4, 64, 64))
     assert logits.shape == (3, NUM_VIEWS) and framing.shape == (3, 3)
     # Untrained, it guesses the procedural renders' median framing.

@@ -157,19 +157,25 @@ def test_same_seed_same_weights(tmp_path, data_overrides):
     assert any(not torch.equal(a[k], c[k]) for k in a)
 
 
+# A tiny model=pixel with a camera head, two stages, and a clip small enough to act on every step.
+PIXEL_WITH_HEAD = ["model=pixel", "model.encoder.channels=[8,16,32,32]", "model.encoder.latent_dim=64",
+                   "model.decoder.channels=[16,8,8]", "model.decoder.grid_resolution=32", "model.refiner.channels=[4,8]",
+                   "model.local.image_channels=[4,8,16]", "model.local.volume_channels=8", "model.local.hidden=16",
+                   "model.local.mirror_axis=null", "model.camera.channels=[8,16]", "stage.schedule=[coarse,refine]",
+                   "trainer.gradient_clip_val=0.01", BITWISE]
+
+
+def _final_states(tmp_path, data_overrides, name: str, *extra: str) -> tuple[dict, dict]:
+    result = train(compose_train(tiny_overrides(data_overrides, 3, *PIXEL_WITH_HEAD, *extra)), tmp_path / name)
+    return (state(result.checkpoint("coarse", "final"), "net."), state(result.checkpoint("refine", "final"), "net."))
+
+
 def test_a_camera_head_trains_in_every_stage_and_leaves_the_rest_as_without_it(tmp_path, data_overrides):
     """model=pixel's camera head learns from every view of each batch, in each stage (the refine
     stage freezes the rest), and is clipped on its own: the other weights end bit for bit as a run
     without a head gives (on the CPU)."""
-    pixel = ["model=pixel", "model.encoder.channels=[8,16,32,32]", "model.encoder.latent_dim=64",
-             "model.decoder.channels=[16,8,8]", "model.decoder.grid_resolution=32", "model.refiner.channels=[4,8]",
-             "model.local.image_channels=[4,8,16]", "model.local.volume_channels=8", "model.local.hidden=16",
-             "model.local.mirror_axis=null", "model.camera.channels=[8,16]", "stage.schedule=[coarse,refine]",
-             "trainer.gradient_clip_val=0.01", BITWISE]  # a clip small enough to act on every step
-
     def final(name: str, *extra: str) -> tuple[dict, dict]:
-        result = train(compose_train(tiny_overrides(data_overrides, 3, *pixel, *extra)), tmp_path / name)
-        return (state(result.checkpoint("coarse", "final"), "net."), state(result.checkpoint("refine", "final"), "net."))
+        return _final_states(tmp_path, data_overrides, name, *extra)
 
     (coarse, refine), (plain_coarse, plain_refine) = final("head"), final("plain", "model.camera=null")
     for with_head, without, stage in ((coarse, plain_coarse, "coarse"), (refine, plain_refine, "refine")):
@@ -183,6 +189,26 @@ def test_a_camera_head_trains_in_every_stage_and_leaves_the_rest_as_without_it(t
     assert len(groups[1]["params"]) == len([k for k in head if not k.endswith(("running_mean", "running_var"))])
     with open(tmp_path / "head" / "coarse" / "csv" / "metrics.csv") as f:
         assert {"train/camera", "train/camera_views_right"} <= set(next(csv.reader(f)))
+
+
+def test_a_camera_head_kept_to_the_coarse_stage_is_frozen_after_it(tmp_path, data_overrides):
+    """model.camera.stages=[coarse]: the head learns in the coarse stage and then neither its weights
+    nor its batch-norm statistics move, nor does it log a loss; the rest of the network trains as
+    with a head in every stage, bit for bit."""
+    (coarse, refine), (every_coarse, every_refine) = (
+        _final_states(tmp_path, data_overrides, "kept", "model.camera.stages=[coarse]"),
+        _final_states(tmp_path, data_overrides, "every"))
+    head = [k for k in coarse if k.startswith("net.camera.")]
+    assert head
+    assert_same({k: coarse[k] for k in head}, {k: every_coarse[k] for k in head}, "coarse: the head")
+    # The refine stage starts from the coarse stage's best checkpoint and leaves the head as it was there.
+    start = state(tmp_path / "kept" / "coarse" / "checkpoints" / "best.ckpt", "net.")
+    assert_same({k: refine[k] for k in head}, {k: start[k] for k in head}, "refine: the frozen head")
+    assert any(not torch.equal(every_refine[k], every_coarse[k]) for k in head if every_refine[k].is_floating_point())
+    assert_same({k: v for k, v in refine.items() if k not in head},
+                {k: v for k, v in every_refine.items() if k not in head}, "refine: the rest")
+    with open(tmp_path / "kept" / "refine" / "csv" / "metrics.csv") as f:
+        assert "train/camera" not in set(next(csv.reader(f)))
 
 
 # ------------------------------------------------------------------------------------------------
