@@ -165,50 +165,53 @@ PIXEL_WITH_HEAD = ["model=pixel", "model.encoder.channels=[8,16,32,32]", "model.
                    "trainer.gradient_clip_val=0.01", BITWISE]
 
 
-def _final_states(tmp_path, data_overrides, name: str, *extra: str) -> tuple[dict, dict]:
-    result = train(compose_train(tiny_overrides(data_overrides, 3, *PIXEL_WITH_HEAD, *extra)), tmp_path / name)
-    return (state(result.checkpoint("coarse", "final"), "net."), state(result.checkpoint("refine", "final"), "net."))
+def _pixel_run(run: Path, data_overrides: list[str], *extra: str) -> dict[str, dict]:
+    """The run's weights: its coarse stage's best and final checkpoints and its refine stage's final."""
+    result = train(compose_train(tiny_overrides(data_overrides, 3, *PIXEL_WITH_HEAD, *extra)), run)
+    return {"coarse_best": state(result.checkpoint("coarse", "best"), "net."),
+            "coarse": state(result.checkpoint("coarse", "final"), "net."),
+            "refine": state(result.checkpoint("refine", "final"), "net.")}
 
 
-def test_a_camera_head_trains_in_every_stage_and_leaves_the_rest_as_without_it(tmp_path, data_overrides):
+@pytest.fixture(scope="module")
+def head_run(tmp_path_factory, data_overrides) -> tuple[Path, dict[str, dict]]:
+    """A run whose camera head learns in every stage (the default), shared by the tests below."""
+    run = tmp_path_factory.mktemp("head")
+    return run, _pixel_run(run, data_overrides)
+
+
+def test_a_camera_head_trains_in_every_stage_and_leaves_the_rest_as_without_it(tmp_path, data_overrides, head_run):
     """model=pixel's camera head learns from every view of each batch, in each stage (the refine
     stage freezes the rest), and is clipped on its own: the other weights end bit for bit as a run
     without a head gives (on the CPU)."""
-    def final(name: str, *extra: str) -> tuple[dict, dict]:
-        return _final_states(tmp_path, data_overrides, name, *extra)
-
-    (coarse, refine), (plain_coarse, plain_refine) = final("head"), final("plain", "model.camera=null")
-    for with_head, without, stage in ((coarse, plain_coarse, "coarse"), (refine, plain_refine, "refine")):
-        assert_same({k: v for k, v in with_head.items() if not k.startswith("net.camera.")}, without, stage)
-    head = {k: v for k, v in coarse.items() if k.startswith("net.camera.") and v.is_floating_point()}
-    assert head and any(not torch.equal(head[k], refine[k]) for k in head)  # it trained in refine too
+    run, with_head = head_run
+    plain = _pixel_run(tmp_path / "plain", data_overrides, "model.camera=null")
+    for stage in ("coarse", "refine"):
+        assert_same({k: v for k, v in with_head[stage].items() if not k.startswith("net.camera.")}, plain[stage], stage)
+    head = {k: v for k, v in with_head["coarse"].items() if k.startswith("net.camera.") and v.is_floating_point()}
+    # It trained in refine too, from where the refine stage started (the coarse stage's best).
+    assert head and any(not torch.equal(with_head["coarse_best"][k], with_head["refine"][k]) for k in head)
     # Its own parameter group, at model.camera.lr_scale times the stage's rate (4 in model=pixel).
-    saved = load_checkpoint(tmp_path / "head" / "coarse" / "checkpoints" / "final.ckpt")
+    saved = load_checkpoint(run / "coarse" / "checkpoints" / "final.ckpt")
     groups = saved["optimizer_states"][0]["param_groups"]
     assert len(groups) == 2 and groups[1]["lr"] == pytest.approx(4.0 * groups[0]["lr"])
     assert len(groups[1]["params"]) == len([k for k in head if not k.endswith(("running_mean", "running_var"))])
-    with open(tmp_path / "head" / "coarse" / "csv" / "metrics.csv") as f:
-        assert {"train/camera", "train/camera_views_right"} <= set(next(csv.reader(f)))
+    assert {"train/camera", "train/camera_views_right"} <= metrics_columns(run / "coarse")
 
 
-def test_a_camera_head_kept_to_the_coarse_stage_is_frozen_after_it(tmp_path, data_overrides):
+def test_a_camera_head_kept_to_the_coarse_stage_is_frozen_after_it(tmp_path, data_overrides, head_run):
     """model.camera.stages=[coarse]: the head learns in the coarse stage and then neither its weights
     nor its batch-norm statistics move, nor does it log a loss; the rest of the network trains as
     with a head in every stage, bit for bit."""
-    (coarse, refine), (every_coarse, every_refine) = (
-        _final_states(tmp_path, data_overrides, "kept", "model.camera.stages=[coarse]"),
-        _final_states(tmp_path, data_overrides, "every"))
-    head = [k for k in coarse if k.startswith("net.camera.")]
+    kept, every = _pixel_run(tmp_path / "kept", data_overrides, "model.camera.stages=[coarse]"), head_run[1]
+    head = [k for k in kept["coarse"] if k.startswith("net.camera.")]
     assert head
-    assert_same({k: coarse[k] for k in head}, {k: every_coarse[k] for k in head}, "coarse: the head")
+    assert_same({k: kept["coarse"][k] for k in head}, {k: every["coarse"][k] for k in head}, "coarse: the head")
     # The refine stage starts from the coarse stage's best checkpoint and leaves the head as it was there.
-    start = state(tmp_path / "kept" / "coarse" / "checkpoints" / "best.ckpt", "net.")
-    assert_same({k: refine[k] for k in head}, {k: start[k] for k in head}, "refine: the frozen head")
-    assert any(not torch.equal(every_refine[k], every_coarse[k]) for k in head if every_refine[k].is_floating_point())
-    assert_same({k: v for k, v in refine.items() if k not in head},
-                {k: v for k, v in every_refine.items() if k not in head}, "refine: the rest")
-    with open(tmp_path / "kept" / "refine" / "csv" / "metrics.csv") as f:
-        assert "train/camera" not in set(next(csv.reader(f)))
+    assert_same({k: kept["refine"][k] for k in head}, {k: kept["coarse_best"][k] for k in head}, "refine: the frozen head")
+    assert_same({k: v for k, v in kept["refine"].items() if k not in head},
+                {k: v for k, v in every["refine"].items() if k not in head}, "refine: the rest")
+    assert "train/camera" not in metrics_columns(tmp_path / "kept" / "refine")
 
 
 # ------------------------------------------------------------------------------------------------
