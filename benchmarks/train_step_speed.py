@@ -31,7 +31,7 @@ from sdfcommon.tooling.host_memory import keep_freed_memory
 from sdfcommon.tooling.settings import build_settings
 from svr import losses
 from svr.models.checkpoint_layout import STAGES
-from svr.training.stages import build_module, resolve_model
+from svr.training.stages import build_module, fill_shape_prior, resolve_model
 
 ROOT = Path(__file__).resolve().parents[1]
 # The configs of the checkout measured, beside its svr package: run in a --baseline checkout, that
@@ -99,7 +99,9 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     # The network as training builds it: a pixel head's mirror_axis "auto" measured on the split,
     # the camera head's elevation "auto" from the data's extra views.
     settings = resolve_model(build_settings(cfg), dm)
-    net = instantiate(settings.model).to(device)
+    net = instantiate(settings.model)
+    fill_shape_prior(net, dm)
+    net = net.to(device)
     module = build_module(settings, net, "joint", dm).to(device)
     module.train()
     images = batch.images[:, 0]

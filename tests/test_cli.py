@@ -235,14 +235,14 @@ def _main(module: str):
 
 @pytest.mark.parametrize("module, args, expected", [
     ("svr.train", ["foo=1"], "foo: unknown setting (TrainSettings has: seed, ckpt_path, "),
-    ("svr.train", ["model=bogus"], "model=bogus: no such option (model has: paper, pixel, small, tiny)"),
+    ("svr.train", ["model=bogus"], "model=bogus: no such option (model has: paper, pixel, pixel_prior, small, tiny)"),
     ("svr.train", ["mvr/noise=bogus"], "mvr/noise: sdfdiff-train has no config group mvr/noise (its groups: "),
     ("svr.evaluate", ["foo=1"], "foo: unknown setting (EvalSettings has: ckpt_path, split, "),
     ("svr.evaluate", ["data=bogus"], "data=bogus: no such option (data has: nmr, procedural, procedural_bench)"),
     ("svr.infer", ["foo=1"], "foo: unknown setting (InferSettings has: ckpt_path, images, "),
     ("svr.infer", ["model=bogus"], "model: sdfdiff-infer has no config group model (its groups: paths)"),
     ("svr.demo", ["foo=1"], "foo: unknown setting (DemoSettings has: "),
-    ("svr.demo", ["model=bogus"], "model=bogus: no such option (model has: paper, pixel, small, tiny)"),
+    ("svr.demo", ["model=bogus"], "model=bogus: no such option (model has: paper, pixel, pixel_prior, small, tiny)"),
     ("mvr.__main__", ["foo=1"], "foo: unknown setting (MVRSettings has: "),
     ("mvr.__main__", ["mvr/noise=bogus"], "mvr/noise=bogus: no such option (mvr/noise has: camera, image, none)"),
     ("svr.data.build.__main__", ["foo=1"], "foo: unknown setting (BuildSettings has: input, out, "),

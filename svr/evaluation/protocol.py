@@ -122,11 +122,14 @@ def evaluate_objects(model: LoadedModel, objects, categories: Sequence[tuple[str
 
 def model_reads(model: LoadedModel) -> str:
     """What a model's scored predictions read besides the input image: "the input camera" (the NMR
-    view index) where its network has a pixel-aligned head or its calibration carves, else
+    view index) where its network has a pixel-aligned head or a shape prior (which compares the
+    input with the training objects' silhouettes in its view) or its calibration carves, else
     "nothing"."""
     why = (["its pixel-aligned head"] if model.net.needs_views else []) + (
+        ["its shape prior"] if getattr(model.net, "prior", None) is not None else []) + (
         ["its calibration's carving"] if model.calibration is not None and model.calibration.carve != "none" else [])
-    return f"the input camera ({' and '.join(why)})" if why else "nothing"
+    listed = " and ".join(why) if len(why) < 3 else f"{', '.join(why[:-1])} and {why[-1]}"
+    return f"the input camera ({listed})" if why else "nothing"
 
 
 def _scores_coarse(model: LoadedModel, compare_coarse: bool) -> bool:

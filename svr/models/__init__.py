@@ -5,7 +5,8 @@ from svr.models.decoder import SDFDecoder, sphere_template
 from svr.models.encoder import ImageEncoder
 from svr.models.local import PixelAlignedHead
 from svr.models.network import SVRNet, SVRPrediction
+from svr.models.prior import ShapePrior
 from svr.models.refiner import BlockRefiner, SDFRefiner
 
-__all__ = ["BlockRefiner", "ImageEncoder", "PixelAlignedHead", "SDFDecoder", "SDFRefiner", "SVRNet", "SVRPrediction", "ViewHead",
+__all__ = ["BlockRefiner", "ImageEncoder", "PixelAlignedHead", "SDFDecoder", "SDFRefiner", "SVRNet", "SVRPrediction", "ShapePrior", "ViewHead",
            "sphere_template"]

@@ -41,7 +41,8 @@ class PixelAlignedHead(nn.Module):
     """
 
     def __init__(self, image_channels: Sequence[int] = (4, 16, 32), volume_channels: int = 16, hidden: int = 64,
-                 image_size: int = 64, head_stride: int = 2, mirror_axis: Optional[int] = None) -> None:
+                 image_size: int = 64, head_stride: int = 2, mirror_axis: Optional[int] = None,
+                 prior: bool = False) -> None:
         super().__init__()
         self.image_channels = check_int_sequence(image_channels, "image_channels", minimum=1)
         check_int(volume_channels, "volume_channels", minimum=1)
@@ -59,20 +60,23 @@ class PixelAlignedHead(nn.Module):
         if mirror_axis is not None and mirror_axis not in (0, 1, 2):
             raise ValueError(f"mirror_axis must be None, 0 (x), 1 (y) or 2 (z), got {mirror_axis!r}")
         self.mirror_axis = mirror_axis
+        if not isinstance(prior, bool):
+            raise ValueError(f"prior must be true or false, got {prior!r}")
+        self.prior = prior
         looks = 2 if mirror_axis is not None else 1
         width = volume_channels + 3 + looks * (1 + head_stride ** 3 * self.image_channels[0]
-                                               + sum(self.image_channels[1:]))
+                                               + sum(self.image_channels[1:])) + (head_stride ** 3 if prior else 0)
         self.first = nn.Linear(width, hidden)
         self.out = nn.Linear(hidden, volume_channels)
         nn.init.zeros_(self.out.weight)  # the untrained head leaves the features as they are
         nn.init.zeros_(self.out.bias)
 
     def forward(self, volume: torch.Tensor, maps: Sequence[torch.Tensor], views: torch.Tensor,
-                points: torch.Tensor) -> torch.Tensor:
+                points: torch.Tensor, prior: Optional[torch.Tensor] = None) -> torch.Tensor:
         """The corrected feature grid: (B, C, s, s, s) ``volume`` plus the MLP's update of each cell
         from ``cell_inputs`` (same arguments)."""
         b, s = volume.shape[0], volume.shape[-1]
-        h = F.relu(self._first(self._cell_parts(volume, maps, views, points)))
+        h = F.relu(self._first(self._cell_parts(volume, maps, views, points, prior)))
         return volume + self.out(h).reshape(b, s, s, s, self.volume_channels).permute(0, 4, 1, 2, 3)
 
     def _first(self, parts: Sequence[torch.Tensor]) -> torch.Tensor:
@@ -96,7 +100,7 @@ class PixelAlignedHead(nn.Module):
         return out
 
     def cell_inputs(self, volume: torch.Tensor, maps: Sequence[torch.Tensor], views: torch.Tensor,
-                    points: torch.Tensor) -> torch.Tensor:
+                    points: torch.Tensor, prior: Optional[torch.Tensor] = None) -> torch.Tensor:
         """What the MLP reads for each cell.
 
         Args:
@@ -106,17 +110,18 @@ class PixelAlignedHead(nn.Module):
                 (view, elevation in degrees) (``svr.nmr.views.view_cameras``).
             points: (S, S, S, 3) world positions of the head's samples (renderer.SDFGrid layout),
                 S = s or 2s.
+            prior: (B, S, S, S) the shape prior at the head's samples; needed when built with ``prior``.
         Returns:
             (B, s^3, width): per cell (cells in renderer.SDFGrid order) its C features and its
             centre's position (3), then per look (the cell, and with ``mirror_axis`` its mirror
             image) the input image at its sub-samples (sub-sample major, ``head_stride**3`` x C_0),
             the other maps at its centre and the centre's depth along the view minus the camera's
-            distance to the origin (1).
+            distance to the origin (1); with ``prior``, last, the prior at its sub-samples (``head_stride**3``).
         """
-        return torch.cat(self._cell_parts(volume, maps, views, points), dim=-1)
+        return torch.cat(self._cell_parts(volume, maps, views, points, prior), dim=-1)
 
     def _cell_parts(self, volume: torch.Tensor, maps: Sequence[torch.Tensor], views: torch.Tensor,
-                    points: torch.Tensor) -> list[torch.Tensor]:
+                    points: torch.Tensor, prior: Optional[torch.Tensor] = None) -> list[torch.Tensor]:
         """``cell_inputs`` before the concatenation: (B, s^3, width_k) parts."""
         b, s = volume.shape[0], volume.shape[-1]
         check_shape(volume, "volume", f"{b}, {self.volume_channels}, s, s, s")
@@ -157,6 +162,11 @@ class PixelAlignedHead(nn.Module):
             flip = torch.ones(3, dtype=sub.dtype, device=sub.device)
             flip[self.mirror_axis] = -1.0
             parts += look(sub * flip)
+        if self.prior:
+            if prior is None:
+                raise ValueError("prior: this head reads a shape prior at its samples (svr.models.ShapePrior); got none")
+            check_shape(prior, "prior", f"{b}, {side}, {side}, {side}")
+            parts.append(prior.reshape(b, s, f, s, f, s, f).permute(0, 1, 3, 5, 2, 4, 6).reshape(b, s ** 3, f ** 3))
         return parts
 
 

@@ -138,8 +138,8 @@ class SVRLightningModule(pl.LightningModule):
     def uses_refiner(self) -> bool:
         return self.stage != "coarse"
 
-    def stage_sdf(self, images: torch.Tensor, views: Optional[torch.Tensor] = None
-                  ) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
+    def stage_sdf(self, images: torch.Tensor, views: Optional[torch.Tensor] = None,
+                  exclude: Optional[torch.Tensor] = None) -> tuple[torch.Tensor, Optional[torch.Tensor]]:
         """(B, 4, 64, 64) images (and their (B,) NMR view indices, which a network with a pixel-aligned
         head needs) -> the coarse (B, N, N, N) and refined SDF (None in the coarse stage) as this
         stage trains them (inference: ``svr.inference.prediction.predict_sdf``).
@@ -147,9 +147,9 @@ class SVRLightningModule(pl.LightningModule):
         Frozen parts run without a graph (they need no gradient)."""
         if self.stage == "refine":
             with torch.no_grad():
-                coarse = self.net.coarse(images, views)
+                coarse = self.net.coarse(images, views, exclude)
         else:
-            coarse = self.net.coarse(images, views)
+            coarse = self.net.coarse(images, views, exclude)
         refined = self.net.refiner(coarse) if self.uses_refiner else None
         return coarse, refined
 
@@ -196,7 +196,9 @@ class SVRLightningModule(pl.LightningModule):
 
     def training_step(self, batch: SVRBatch, batch_idx: int) -> torch.Tensor:
         self._skip_this_step = False
-        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.views[:, 0])
+        exclude = (self.net.prior.exclusion(batch.category, batch.object_index) if self.net.prior is not None
+                   else None)  # the prior never retrieves a training input's own object
+        coarse, refined = self.stage_sdf(batch.images[:, 0], batch.views[:, 0], exclude)
         sdf = refined if refined is not None else coarse
         terms, why = None, None
         if not bool(torch.isfinite(sdf.detach()).all()):

@@ -13,6 +13,7 @@ from svr.models.camera import ViewHead
 from svr.models.decoder import SDFDecoder
 from svr.models.encoder import ImageEncoder
 from svr.models.local import PixelAlignedHead
+from svr.models.prior import ShapePrior
 from svr.models.refiner import BlockRefiner, SDFRefiner
 
 
@@ -48,11 +49,13 @@ class SVRNet(nn.Module):
             images' NMR view indices (``forward(images, views=...)``).
         camera: an optional ViewHead that estimates an image's NMR view and framing (for inputs
             whose camera is unknown, such as photos); trained beside the rest, apart from it.
+        prior: an optional ShapePrior (the nearest training objects' visual hull, read by the
+            pixel-aligned head at its samples; the head must be built with ``prior=True``).
     """
 
     def __init__(self, encoder: ImageEncoder, decoder: SDFDecoder, refiner: BlockRefiner | SDFRefiner,
                  half_side: float = 0.6, local: PixelAlignedHead | None = None,
-                 camera: ViewHead | None = None) -> None:
+                 camera: ViewHead | None = None, prior: ShapePrior | None = None) -> None:
         super().__init__()
         for name, mod, cls in (("encoder", encoder, ImageEncoder), ("decoder", decoder, SDFDecoder),
                                ("refiner", refiner, BlockRefiner)):
@@ -82,11 +85,22 @@ class SVRNet(nn.Module):
                                  f"({encoder.image_size})")
         if camera is not None:
             check_instance(camera, "camera", ViewHead, "a ViewHead or None")
+        if prior is not None:
+            check_instance(prior, "prior", ShapePrior, "a ShapePrior or None")
+            if local is None or not local.prior:
+                raise ValueError("prior needs a pixel-aligned head that reads it (local.prior: true)")
+            side = decoder.head_points.shape[0]
+            if prior.side != side:
+                raise ValueError(f"prior.side ({prior.side}) must equal the side of the decoder's head grid ({side})")
+            prior.attach(decoder.head_points)
+        elif local is not None and local.prior:
+            raise ValueError("local.prior is true but the network has no prior (model.prior)")
         self.encoder = encoder
         self.decoder = decoder
         self.refiner = refiner
         self.local = local
         self.camera = camera
+        self.prior = prior
         self.half_side = float(half_side)
 
     @property
@@ -103,16 +117,19 @@ class SVRNet(nn.Module):
         """Spacing of the SDF samples (world units)."""
         return 2.0 * self.half_side / (self.grid_resolution - 1)
 
-    def coarse(self, images: torch.Tensor, views: torch.Tensor | None = None) -> torch.Tensor:
+    def coarse(self, images: torch.Tensor, views: torch.Tensor | None = None,
+               exclude: torch.Tensor | None = None) -> torch.Tensor:
         """images: (B, 4, 64, 64) RGBA in [0, 1] (and, with a pixel-aligned head, views: (B,) their NMR
-        view indices) -> (B, N, N, N) the decoder's SDF."""
+        view indices) -> (B, N, N, N) the decoder's SDF. ``exclude``: (B,) training objects the prior
+        must not retrieve (training passes each input's own object)."""
         if self.local is None:
             return self.decoder(self.encoder(images))
         if views is None:
             raise ValueError("views: this network reads image features where each sample projects into the input "
                              "view, so it needs the input images' NMR view indices (0..23), one per image")
         code, maps = self.encoder.forward_maps(images, len(self.local.image_channels))
-        feats = self.local(self.decoder.features(code), maps, views, self.decoder.head_points)
+        prior = self.prior(images[:, 3], views, exclude) if self.prior is not None else None
+        feats = self.local(self.decoder.features(code), maps, views, self.decoder.head_points, prior)
         return self.decoder.finish(self.decoder.head(feats)[:, 0])
 
     def forward(self, images: torch.Tensor, refine: bool = True, views: torch.Tensor | None = None) -> SVRPrediction:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import sys
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -125,10 +126,35 @@ def resolve_camera_elevation(settings: TrainSettings, datamodule) -> TrainSettin
     return dataclasses.replace(settings, model=model)
 
 
+def resolve_shape_prior(settings: TrainSettings, datamodule) -> TrainSettings:
+    """The settings with a shape prior's ``objects: auto`` and ``categories: auto`` replaced by the
+    training split's counts (``svr.models.ShapePrior`` holds a row per training object)."""
+    prior = settings.model.get("prior") if isinstance(settings.model, dict) else None
+    if not isinstance(prior, dict) or "auto" not in (prior.get("objects"), prior.get("categories")):
+        return settings
+    datamodule.prepare_data()
+    train_set = datamodule.dataset("train")
+    resolved = {**prior, "objects": len(train_set), "categories": len(train_set.offsets) - 1}
+    return dataclasses.replace(settings, model={**settings.model, "prior": resolved})
+
+
+def fill_shape_prior(net: SVRNet, datamodule) -> None:
+    """Reads the training split into the network's shape prior, where it has one."""
+    if net.prior is None:
+        return
+    datamodule.prepare_data()
+    train_set = datamodule.dataset("train")
+    started = time.perf_counter()
+    net.prior.fill(train_set)
+    log.info("shape prior: the silhouettes and visual hulls of %d training objects (%.1f s)", len(train_set),
+             time.perf_counter() - started)
+
+
 def resolve_model(settings: TrainSettings, datamodule) -> TrainSettings:
     """The settings with the model's ``auto`` values measured on the data (``resolve_mirror_axis``,
-    ``resolve_camera_elevation``): the network as training builds it."""
-    return resolve_camera_elevation(resolve_mirror_axis(settings, datamodule), datamodule)
+    ``resolve_camera_elevation``, ``resolve_shape_prior``): the network as training builds it."""
+    settings = resolve_camera_elevation(resolve_mirror_axis(settings, datamodule), datamodule)
+    return resolve_shape_prior(settings, datamodule)
 
 
 def build_module(settings: TrainSettings, net: SVRNet, stage: str, datamodule: SVRDataModule) -> SVRLightningModule:
@@ -275,6 +301,7 @@ def train(settings: TrainSettings, run_dir: str | Path) -> TrainResult:
     net = instantiate(settings.model)
     if not isinstance(net, SVRNet):
         raise TypeError(f"model must instantiate a svr.models.SVRNet, got {type(net).__name__}")
+    fill_shape_prior(net, datamodule)
     if ckpt is not None:
         if not resume:
             load_network_weights(net, ckpt, ckpt_path)
@@ -339,4 +366,5 @@ def _stopped(trainer: pl.Trainer, stage: str, run: RunFolder, checkpoint: Option
 
 
 __all__ = ["train", "StageResult", "TrainResult", "TrainingStopped", "build_module", "build_scene",
-           "build_trainer", "plan_schedule", "resolve_camera_elevation", "resolve_mirror_axis", "resolve_model"]
+           "build_trainer", "plan_schedule", "fill_shape_prior", "resolve_camera_elevation", "resolve_mirror_axis",
+           "resolve_model", "resolve_shape_prior"]

@@ -370,6 +370,9 @@ def test_notes_say_what_each_row_reads(tmp_path):
     assert model_reads(LoadedModel(net, calibration=Calibration(carve="view"))) == \
         "the input camera (its calibration's carving)"
     assert model_reads(LoadedModel(SimpleNamespace(needs_views=True))) == "the input camera (its pixel-aligned head)"
+    assert model_reads(LoadedModel(SimpleNamespace(needs_views=True, prior=object()),
+                                   calibration=Calibration(carve="view"))) == \
+        "the input camera (its pixel-aligned head, its shape prior and its calibration's carving)"
 
 
 def test_nmr_tables_give_both_sdfdiff_means():

@@ -199,6 +199,46 @@ def test_a_camera_head_trains_in_every_stage_and_leaves_the_rest_as_without_it(t
     assert {"train/camera", "train/camera_views_right"} <= metrics_columns(run / "coarse")
 
 
+def test_a_shape_prior_is_filled_from_the_training_split_and_travels_with_the_checkpoint(tmp_path, data_overrides,
+                                                                                        monkeypatch):
+    """model=pixel_prior: the training command sizes the prior from the training split, fills it
+    from its images, keeps each training input's own object out of its retrieval (and nothing out
+    in validation, whose objects are not training objects), and the checkpoint rebuilds the same
+    prior."""
+    from svr.inference.checkpoints import load_network
+    from svr.models import ShapePrior
+    calls = []
+    forward = ShapePrior.forward
+
+    def recording(self, alpha, views, exclude=None):
+        calls.append(None if exclude is None else exclude.tolist())
+        return forward(self, alpha, views, exclude)
+
+    monkeypatch.setattr(ShapePrior, "forward", recording)
+    pixel = [o for o in PIXEL_WITH_HEAD if o != "model=pixel"]
+    cfg = compose_train(tiny_overrides(data_overrides, 2, "model=pixel_prior", *pixel, "model.prior.neighbours=2",
+                                       "stage.schedule=[coarse]"))
+    result = train(cfg, tmp_path / "run")
+    training = [c for c in calls if c is not None]
+    assert len(training) >= 2 and all(0 <= g < 4 for c in training for g in c)  # 2 steps, global training indices
+    assert None in calls  # validation retrieves from every training object
+    net, meta = load_network(result.checkpoint("coarse", "final"))
+    prior = net.prior
+    assert meta["model_config"]["prior"]["objects"] == 4 and meta["model_config"]["prior"]["categories"] == 2
+    assert prior.first.tolist() == [0, 2] and prior.silhouettes.float().mean() > 1  # the objects' silhouettes
+    assert prior.hulls.float().amax(1).min() > 200  # each object's hull holds points deep inside it
+    # Built again from the training split, the prior is the one the checkpoint holds.
+    dm = instantiate(cfg.data)
+    again = stages.instantiate(meta["model_config"])
+    stages.fill_shape_prior(again, dm)
+    assert torch.equal(again.prior.silhouettes, prior.silhouettes) and torch.equal(again.prior.hulls, prior.hulls)
+    # An object's own view retrieves it, unless excluded (as training does).
+    train_set = dm.dataset("train")
+    alpha = torch.from_numpy(train_set.images_uint8(3, [5])[:, 3]).float() / 255
+    assert prior.nearest(alpha, torch.tensor([5]))[0, 0] == 3
+    assert 3 not in prior.nearest(alpha, torch.tensor([5]), exclude=torch.tensor([3])).tolist()[0]
+
+
 def test_a_camera_head_kept_to_the_coarse_stage_is_frozen_after_it(tmp_path, data_overrides, head_run):
     """model.camera.stages=[coarse]: the head learns in the coarse stage and then neither its weights
     nor its batch-norm statistics move, nor does it log a loss; the rest of the network trains as
