@@ -144,12 +144,14 @@ class SVRLightningModule(pl.LightningModule):
         head needs) -> the coarse (B, N, N, N) and refined SDF (None in the coarse stage) as this
         stage trains them (inference: ``svr.inference.prediction.predict_sdf``).
 
-        Frozen parts run without a graph (they need no gradient)."""
+        Frozen parts run without a graph (they need no gradient). ``exclude``: (B,) training objects
+        the shape prior must not retrieve."""
+        prior = self.net.shape_prior(images, views, exclude)
         if self.stage == "refine":
             with torch.no_grad():
-                coarse = self.net.coarse(images, views, exclude)
+                coarse = self.net.coarse(images, views, prior)
         else:
-            coarse = self.net.coarse(images, views, exclude)
+            coarse = self.net.coarse(images, views, prior)
         refined = self.net.refiner(coarse) if self.uses_refiner else None
         return coarse, refined
 

@@ -117,25 +117,38 @@ class SVRNet(nn.Module):
         """Spacing of the SDF samples (world units)."""
         return 2.0 * self.half_side / (self.grid_resolution - 1)
 
+    def shape_prior(self, images: torch.Tensor, views: torch.Tensor | None,
+                    exclude: torch.Tensor | None = None) -> torch.Tensor | None:
+        """(B, S, S, S) the shape prior of B images (None without one); ``exclude``: (B,) training
+        objects it must not retrieve (training passes each input's own object)."""
+        if self.prior is None:
+            return None
+        if views is None:
+            raise ValueError("views: this network's shape prior compares the input with the training objects in the "
+                             "input's view, so it needs the input images' NMR view indices (0..23), one per image")
+        return self.prior(images[:, 3], views, exclude)
+
     def coarse(self, images: torch.Tensor, views: torch.Tensor | None = None,
-               exclude: torch.Tensor | None = None) -> torch.Tensor:
+               prior: torch.Tensor | None = None) -> torch.Tensor:
         """images: (B, 4, 64, 64) RGBA in [0, 1] (and, with a pixel-aligned head, views: (B,) their NMR
-        view indices) -> (B, N, N, N) the decoder's SDF. ``exclude``: (B,) training objects the prior
-        must not retrieve (training passes each input's own object)."""
+        view indices) -> (B, N, N, N) the decoder's SDF; ``prior``: the images' ``shape_prior`` where
+        already made (else it is made here)."""
         if self.local is None:
             return self.decoder(self.encoder(images))
         if views is None:
             raise ValueError("views: this network reads image features where each sample projects into the input "
                              "view, so it needs the input images' NMR view indices (0..23), one per image")
         code, maps = self.encoder.forward_maps(images, len(self.local.image_channels))
-        prior = self.prior(images[:, 3], views, exclude) if self.prior is not None else None
+        if prior is None:
+            prior = self.shape_prior(images, views)
         feats = self.local(self.decoder.features(code), maps, views, self.decoder.head_points, prior)
         return self.decoder.finish(self.decoder.head(feats)[:, 0])
 
     def forward(self, images: torch.Tensor, refine: bool = True, views: torch.Tensor | None = None) -> SVRPrediction:
         """images: (B, 4, 64, 64) RGBA in [0, 1] -> SVRPrediction (coarse and, with refine, refined);
         ``views`` (B,) NMR view indices of the images, needed with a pixel-aligned head."""
-        coarse = self.coarse(images, views)
+        prior = self.shape_prior(images, views)
+        coarse = self.coarse(images, views, prior)
         refined = self.refiner(coarse) if refine else None
         return SVRPrediction(coarse=coarse, refined=refined)
 

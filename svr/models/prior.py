@@ -90,7 +90,8 @@ class ShapePrior(nn.Module):
         calls it with the decoder's ``head_points``)."""
         check_shape(points, "points", f"{self.side}, {self.side}, {self.side}, 3")
         self.grid = view_grid(points.reshape(-1, 3).float().cpu()).to(self.grid.device)
-        self.rebuild()
+        if bool(self.silhouettes.any()):  # a new prior's hulls are empty, as its silhouettes
+            self.rebuild()
 
     @torch.no_grad()
     def rebuild(self) -> None:

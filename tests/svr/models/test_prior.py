@@ -136,7 +136,8 @@ def test_a_network_with_a_prior_checks_its_parts_and_uses_it():
     image[0, 3] = torch.from_numpy(disc(12)).float() / 255
     with torch.no_grad():
         own = net.coarse(image, torch.tensor([0]))
-        other = net.coarse(image, torch.tensor([0]), exclude=torch.tensor([2]))
+        other = net.coarse(image, torch.tensor([0]),
+                           prior=net.shape_prior(image, torch.tensor([0]), exclude=torch.tensor([2])))
     assert (own - other).abs().max() > 1e-4  # another neighbour's hull, another shape
     # The silhouettes travel with the weights; the hulls are made from them again on loading.
     state = net.state_dict()
@@ -155,3 +156,4 @@ def test_model_pixel_prior_composes():
     net = instantiate(cfg.model)
     assert isinstance(net.prior, ShapePrior) and net.local.prior and net.prior.side == 32
     assert net.prior.hulls.shape == (20, 32 ** 3)
+
