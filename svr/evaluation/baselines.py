@@ -34,7 +34,7 @@ from tqdm.auto import tqdm
 from sdfcommon.tooling.checks import check_int, check_shape
 from svr.data.procedural.generator import dataset_shape, is_procedural_dataset
 from svr.nmr.format import NUM_VIEWS
-from svr.nmr.metrics import voxel_iou, voxels_protocol
+from svr.nmr.metrics import silhouette_features, soft_silhouette_iou, voxel_iou, voxels_protocol
 from svr.nmr.side_views import render_silhouettes, side_views, silhouette_iou
 from svr.nmr.voxels import clip_to_box, voxels_to_sdf
 
@@ -170,11 +170,9 @@ def category_mean_shapes(train) -> dict[int, torch.Tensor]:
 
 
 def _alpha_features(alpha_uint8: np.ndarray) -> torch.Tensor:
-    """(N, 64, 64) uint8 alpha -> (N, 1024) float32 in [0, 1], 2x2 box-averaged to 32^2 (robust to
-    one-pixel shifts, 4x cheaper to compare)."""
-    a = torch.from_numpy(np.ascontiguousarray(alpha_uint8)).float().div_(255.0)
-    n, h, w = a.shape
-    return a.reshape(n, h // 2, 2, w // 2, 2).mean((2, 4)).reshape(n, -1)
+    """(N, 64, 64) uint8 alpha -> (N, 1024) float32 in [0, 1], 2x2 box-averaged to 32^2
+    (``svr.nmr.metrics.silhouette_features``)."""
+    return silhouette_features(torch.from_numpy(np.ascontiguousarray(alpha_uint8)).float().div_(255.0))
 
 
 def retrieve(train, queries: np.ndarray, views: np.ndarray, chunk: int = 1024,
@@ -202,14 +200,10 @@ def retrieve(train, queries: np.ndarray, views: np.ndarray, chunk: int = 1024,
     out = np.full(len(views), -1, dtype=np.int64)
     for v in np.unique(views):
         bank = _alpha_features(train.silhouettes(int(v)))
-        bank_area = bank.sum(1)
         rows = np.flatnonzero(views == v)
         for a in range(0, len(rows), chunk):
             sel = rows[a:a + chunk]
-            q = _alpha_features(queries[sel])
-            inter = q @ bank.T
-            union = q.sum(1, keepdim=True) + bank_area[None, :] - inter
-            out[sel] = torch.argmax(inter / union.clamp(min=1e-6), dim=1).numpy()
+            out[sel] = torch.argmax(soft_silhouette_iou(_alpha_features(queries[sel]), bank), dim=1).numpy()
             if progress is not None:
                 progress(len(sel))
     return out
@@ -244,11 +238,8 @@ def retrieve_any_view(train, queries: np.ndarray, chunk: int = 1024,
     features = [_alpha_features(queries[a:a + chunk]) for a in range(0, len(queries), chunk)]
     for v in range(NUM_VIEWS):
         bank = _alpha_features(train.silhouettes(v))
-        bank_area = bank.sum(1)
         for a, q in zip(range(0, len(queries), chunk), features):
-            inter = q @ bank.T
-            union = q.sum(1, keepdim=True) + bank_area[None, :] - inter
-            iou = inter / union.clamp(min=1e-6)
+            iou = soft_silhouette_iou(q, bank)
             index = torch.argmax(iou, dim=1)  # the first of equal scores: the lower object index
             score = iou.gather(1, index[:, None])[:, 0]
             sl = slice(a, a + len(q))

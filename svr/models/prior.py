@@ -17,15 +17,10 @@ from torch.nn import functional as F
 
 from renderer import NMR_NUM_VIEWS
 from sdfcommon.tooling.checks import check_int, check_shape
+from svr.nmr.metrics import silhouette_features, soft_silhouette_iou
 from svr.nmr.views import view_cameras
 
-FEATURE_SIDE = 32  # silhouettes are compared as 2x2 means of the 64^2 alpha (as svr.evaluation's retrieval)
-
-
-def silhouette_features(alpha: torch.Tensor) -> torch.Tensor:
-    """(B, 64, 64) alpha in [0, 1] -> (B, 1024) its 2x2 means."""
-    b, h, w = alpha.shape
-    return alpha.reshape(b, h // 2, 2, w // 2, 2).mean((2, 4)).reshape(b, -1)
+FEATURE_SIDE = 32  # silhouettes are compared as 2x2 means of the 64^2 alpha (silhouette_features)
 
 
 def view_grid(points: torch.Tensor, image_size: int = 64) -> torch.Tensor:
@@ -128,10 +123,7 @@ class ShapePrior(nn.Module):
         score = torch.empty(len(q), self.objects, device=q.device)
         for v in torch.unique(views).tolist():  # one product per view
             rows = (views == v).nonzero()[:, 0]
-            bank = self.silhouettes[v].float().div_(255.0)  # (N, F)
-            inter = q[rows] @ bank.T
-            union = q[rows].sum(1, keepdim=True) + bank.sum(1) - inter
-            score[rows] = inter / union.clamp(min=1e-6)
+            score[rows] = soft_silhouette_iou(q[rows], self.silhouettes[v].float().div_(255.0))
         if exclude is not None:
             keep = exclude >= 0
             score[keep.nonzero()[:, 0], exclude[keep]] = -1.0
@@ -164,4 +156,4 @@ class ShapePrior(nn.Module):
         return self.first[category.long()] + object_index.long()
 
 
-__all__ = ["ShapePrior", "silhouette_features", "view_grid", "visual_hull"]
+__all__ = ["ShapePrior", "view_grid", "visual_hull"]

@@ -212,7 +212,22 @@ def iou_table(per_image_iou: ArrayLike, category_index: ArrayLike,
     return IoUTable(tuple(rows), float(np.mean(present)) if present else float("nan"))
 
 
+def silhouette_features(alpha: torch.Tensor) -> torch.Tensor:
+    """(N, H, W) alpha in [0, 1] -> (N, H * W / 4) its 2x2 means: what silhouette retrieval compares
+    (robust to one-pixel shifts, 4x cheaper)."""
+    n, h, w = alpha.shape
+    return alpha.reshape(n, h // 2, 2, w // 2, 2).mean((2, 4)).reshape(n, -1)
+
+
+def soft_silhouette_iou(queries: torch.Tensor, bank: torch.Tensor) -> torch.Tensor:
+    """(Q, N) soft IoU ``<a, b> / (|a| + |b| - <a, b>)`` of every query (Q, F) with every bank row (N, F)
+    (``silhouette_features`` of both)."""
+    inter = queries @ bank.T
+    union = queries.sum(1, keepdim=True) + bank.sum(1)[None, :] - inter
+    return inter / union.clamp(min=1e-6)
+
+
 __all__ = [
     "PAPER_SDFDIFF_IOU", "PAPER_SDFDIFF_MEAN_IOU", "PROTOCOL_LIKE_LEVEL", "voxel_iou", "voxels_protocol", "iou_protocol",
-    "iou_direct", "CategoryIoU", "IoUTable", "iou_table",
+    "iou_direct", "CategoryIoU", "IoUTable", "iou_table", "silhouette_features", "soft_silhouette_iou",
 ]
