@@ -15,7 +15,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from sdfcommon.tooling.checks import check_int, check_int_sequence, check_shape
-from svr.nmr.views import view_cameras
+from svr.nmr.views import sample_grid, view_cameras
 
 
 class PixelAlignedHead(nn.Module):
@@ -142,7 +142,7 @@ class PixelAlignedHead(nn.Module):
 
         def grid_of(pts: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
             pix, depth = cams.project(pts)  # (B, P, 2), (B, P)
-            return ((pix + 0.5) * (2.0 / self.image_size) - 1.0).unsqueeze(1), depth  # align_corners=False
+            return sample_grid(pix, self.image_size).unsqueeze(1), depth
 
         def sample(m: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:  # -> (B, P, C)
             return F.grid_sample(m, grid, mode="bilinear", padding_mode="border", align_corners=False)[:, :, 0] \

@@ -18,7 +18,7 @@ from torch.nn import functional as F
 from renderer import NMR_NUM_VIEWS
 from sdfcommon.tooling.checks import check_int, check_shape
 from svr.nmr.metrics import silhouette_features, soft_silhouette_iou
-from svr.nmr.views import view_cameras
+from svr.nmr.views import sample_grid, view_cameras
 
 FEATURE_SIDE = 32  # silhouettes are compared as 2x2 means of the 64^2 alpha (silhouette_features)
 
@@ -28,7 +28,7 @@ def view_grid(points: torch.Tensor, image_size: int = 64) -> torch.Tensor:
     grid (``align_corners=False``)."""
     cams = view_cameras(torch.arange(NMR_NUM_VIEWS), image_size, dtype=points.dtype, device=points.device)
     pix, _ = cams.project(points)
-    return ((pix + 0.5) * (2.0 / image_size) - 1.0).unsqueeze(1)
+    return sample_grid(pix, image_size).unsqueeze(1)
 
 
 def visual_hull(alpha: torch.Tensor, grid: torch.Tensor) -> torch.Tensor:

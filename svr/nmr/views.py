@@ -117,4 +117,12 @@ def render_previews(grid: renderer.SDFGrid, views: Sequence[int] | torch.Tensor 
     return colours.permute(0, 1, 3, 4, 2).float().clamp(0, 1).cpu()
 
 
-__all__ = ["view_rows", "view_cameras", "render_views", "render_previews", "PREVIEW_SCENE", "PREVIEW_VIEWS"]
+
+def sample_grid(pixels: torch.Tensor, image_size: int) -> torch.Tensor:
+    """Continuous pixel coordinates (..., 2) (``renderer.Cameras.project``: integral at pixel
+    centres) -> ``F.grid_sample`` coordinates in [-1, 1] for an image of side ``image_size``
+    (``align_corners=False``)."""
+    return (pixels + 0.5) * (2.0 / image_size) - 1.0
+
+__all__ = ["view_rows", "view_cameras", "render_views", "render_previews", "sample_grid", "PREVIEW_SCENE",
+           "PREVIEW_VIEWS"]
