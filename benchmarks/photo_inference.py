@@ -5,8 +5,8 @@ benchmarks.photo_inference --ckpt RUN/joint/checkpoints/best.ckpt [--preset demo
 exact shape as the dataset's views were); each render becomes a photo: scaled by 0.8 to 1.2 (from
 twice its size), placed up to 10% of the image off centre on a 240^2 white canvas, saved as a JPEG
 with no alpha. ``svr.infer``'s own steps then read it (plain background removed), estimate its
-camera with the checkpoint's head, frame it (its framing bank, built here where the checkpoint has
-none) and reconstruct it (``svr.inference.reconstruction``). Beside it on the same images, by the
+camera with the checkpoint's head and its framing bank's votes, frame it (by that bank, built here
+where the checkpoint has none or one without the renders' views) and reconstruct it (``svr.inference.reconstruction``). Beside it on the same images, by the
 benchmark's voxel IoU in the canonical frame, with 95% bootstrap intervals over objects: the same
 photos given their true camera and framing (the framing the render had); given their true view
 with the framing estimated (by the bank, as ``svr.infer`` does, and by the camera head, as it did
@@ -84,9 +84,11 @@ def run(ckpt: str, preset: str, views: int, seed: int, work: Path, random_views:
     if getattr(model.net, "camera", None) is None:
         raise SystemExit(f"--ckpt {ckpt}: the checkpoint has no camera head (model.camera)")
     bank_source = "the checkpoint's"
-    if model.framing_bank is None:  # an older checkpoint: the bank svr.demo would have stored, not written
+    if model.framing_bank is None or model.framing_bank.views is None:
+        # An older checkpoint: the bank svr.demo would store today, not written into it.
+        why = "none" if model.framing_bank is None else "one without the renders' views"
         model = dataclasses.replace(model, framing_bank=build_framing_bank(train))
-        bank_source = "built here from the training split (the checkpoint holds none)"
+        bank_source = f"built here from the training split (the checkpoint holds {why})"
     hs = model.half_side
     rng = np.random.default_rng(seed)
     work.mkdir(parents=True, exist_ok=True)

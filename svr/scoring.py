@@ -85,11 +85,13 @@ def calibrate_checkpoint(path: Path, datamodule: SVRDataModule, progress: bool =
 def bank_checkpoints(paths, datamodule: SVRDataModule, progress: bool = True) -> Optional[int]:
     """Stores a framing bank of the data module's training split (``svr.inference.framing_bank``:
     how ``svr.infer`` frames a photo whose camera it estimates) in each checkpoint of ``paths``
-    whose network has a camera head and that holds none; built once. Returns the bank's size, or
-    None where no checkpoint needed one."""
+    whose network has a camera head and that holds none, or one stored before banks kept their
+    renders' views (replaced: the views vote for a photo's camera); built once. Returns the bank's
+    size, or None where no checkpoint needed one."""
     def needs_bank(path) -> bool:
         model = load_model(path, "cpu")  # reads a stored bank too
-        return getattr(model.net, "camera", None) is not None and model.framing_bank is None
+        bank = model.framing_bank
+        return getattr(model.net, "camera", None) is not None and (bank is None or bank.views is None)
 
     todo = [p for p in dict.fromkeys(paths) if needs_bank(p)]
     if not todo:

@@ -9,7 +9,9 @@ similarity-weighted mean of its ``BANK_NEIGHBOURS`` most similar entries'. On th
 photos at random cameras, given the true view, it scored 0.418 against 0.375 for the camera
 head's framing (docs/photo_inference_demo_random.md). It reads only what NMR-format data holds
 (the training split's alpha channels), is built after training and kept in the checkpoint
-(``store_framing_bank``), 128 bytes a render.
+(``store_framing_bank``), 129 bytes a render. Each entry also keeps the NMR view it was rendered
+from, so the nearest entries vote for the photo's view (``FramingBank.view_votes``), which
+``svr.inference.input_camera`` weighs with the camera head's estimate.
 """
 from __future__ import annotations
 
@@ -32,7 +34,8 @@ BANK_SIDE = 32           # silhouettes compared at 32^2 (2x2 means of the 64^2 a
 BANK_NEIGHBOURS = 16     # entries averaged per photo (4, 8, 16, 32 measured: 16 best, by 0.005)
 WEIGHT_POWER = 4         # each neighbour weighs its IoU with the photo to this power
 SUPERSAMPLE = 4          # as framing.frame_image: sub-samples per framed pixel and axis
-MAX_RENDERS = 50_000     # a bank holds at most this many (6.4 MB in the checkpoint): the demo's 9709
+MAX_RENDERS = 50_000     # a bank holds at most this many (6.5 MB in the checkpoint): the demo's 9709
+VOTE_NEIGHBOURS = 32     # entries that vote for a photo's view (32, 128, 512 tried on the demo's validation photos)
 
 
 def bank_features(alpha: np.ndarray | torch.Tensor) -> torch.Tensor:
@@ -105,17 +108,26 @@ class FramingBank:
         silhouettes: (N, BANK_SIDE^2) bool (``bank_features`` of each render framed to ``framing``).
         framings: (N, 3) float32 rows of (extent, centre_x, centre_y), as ``Framing``'s fields.
         framing: the framing the silhouettes were put into (a photo's is the same).
+        views: (N,) int64 NMR view (0..23) of each render, or None (a bank stored before they were
+            kept: it votes for no view).
     """
 
     silhouettes: torch.Tensor
     framings: torch.Tensor
     framing: Framing = TRAINING_FRAMING
+    views: Optional[torch.Tensor] = None
 
     def __post_init__(self) -> None:
         if self.silhouettes.ndim != 2 or self.silhouettes.shape[1] != BANK_SIDE ** 2:
             raise ValueError(f"silhouettes must be (N, {BANK_SIDE ** 2}), got {tuple(self.silhouettes.shape)}")
         if self.framings.shape != (len(self.silhouettes), 3):
             raise ValueError(f"framings must be ({len(self.silhouettes)}, 3), got {tuple(self.framings.shape)}")
+        if self.views is not None:
+            views = torch.as_tensor(self.views).to("cpu", torch.int64)
+            if views.shape != (len(self.silhouettes),) or bool(((views < 0) | (views >= NUM_VIEWS)).any()):
+                raise ValueError(f"views must be ({len(self.silhouettes)},) NMR views in [0, {NUM_VIEWS}), "
+                                 f"got shape {tuple(views.shape)}")
+            object.__setattr__(self, "views", views)
         if len(self.silhouettes) == 0:
             raise ValueError("a framing bank needs at least one render (every silhouette touched the border?)")
         packed = np.packbits(self.silhouettes.numpy().astype(np.uint8), axis=1)  # compared as bits
@@ -125,26 +137,46 @@ class FramingBank:
     def __len__(self) -> int:
         return len(self.silhouettes)
 
-    def estimate(self, framed_alpha: np.ndarray, neighbours: int = BANK_NEIGHBOURS) -> Framing:
-        """The framing of a photo whose (S, S) uint8 alpha has been framed to ``self.framing``: the
-        mean of its ``neighbours`` nearest entries' framings (by silhouette IoU), weighted by the IoU
-        to the power ``WEIGHT_POWER``."""
+    def _nearest(self, framed_alpha: np.ndarray, neighbours: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The indices of the ``neighbours`` entries nearest a framed (S, S) alpha by silhouette IoU,
+        and their weights (the IoU to the power ``WEIGHT_POWER``)."""
         q = np.packbits(bank_features(np.asarray(framed_alpha)[None])[0].numpy().astype(np.uint8))
         inter = _popcount(self._packed & q).sum(1, dtype=np.int64)
         union = self._area + int(_popcount(q).sum()) - inter
         iou = torch.from_numpy(inter / np.maximum(union, 1))
         top = torch.topk(iou, min(int(neighbours), len(self))).indices
-        w = iou[top].double() ** WEIGHT_POWER
+        return top, iou[top].double() ** WEIGHT_POWER
+
+    def estimate(self, framed_alpha: np.ndarray, neighbours: int = BANK_NEIGHBOURS) -> Framing:
+        """The framing of a photo whose (S, S) uint8 alpha has been framed to ``self.framing``: the
+        mean of its ``neighbours`` nearest entries' framings (by silhouette IoU), weighted by the IoU
+        to the power ``WEIGHT_POWER``."""
+        top, w = self._nearest(framed_alpha, neighbours)
         if float(w.sum()) <= 0.0:  # nothing overlaps at all: the median framing
             return self.framing
         f = (self.framings[top].double() * w[:, None]).sum(0) / w.sum()
         return Framing(*(float(x) for x in f))
 
+    def view_votes(self, framed_alpha: np.ndarray, neighbours: int = VOTE_NEIGHBOURS) -> Optional[torch.Tensor]:
+        """(24,) float64 summing to 1: the views of the ``neighbours`` entries nearest a photo's
+        framed alpha (as ``estimate`` reads it), each weighted as there; None for a bank without
+        views, or when nothing overlaps the photo."""
+        if self.views is None:
+            return None
+        top, w = self._nearest(framed_alpha, neighbours)
+        if float(w.sum()) <= 0.0:
+            return None
+        votes = torch.zeros(NUM_VIEWS, dtype=torch.float64).index_add_(0, self.views[top], w)
+        return votes / votes.sum()
+
     def record(self) -> dict[str, Any]:
         """What the checkpoint keeps (``from_record`` reads it back): the silhouettes bit-packed."""
-        return {"side": BANK_SIDE, "silhouettes": torch.from_numpy(self._packed.copy()),
-                "framings": self.framings.clone(),
-                "framing": [self.framing.extent, self.framing.centre_x, self.framing.centre_y]}
+        out = {"side": BANK_SIDE, "silhouettes": torch.from_numpy(self._packed.copy()),
+               "framings": self.framings.clone(),
+               "framing": [self.framing.extent, self.framing.centre_x, self.framing.centre_y]}
+        if self.views is not None:
+            out["views"] = self.views.to(torch.int8)
+        return out
 
     @classmethod
     def from_record(cls, record: dict, name: str = "framing bank") -> "FramingBank":
@@ -155,9 +187,11 @@ class FramingBank:
             # A checkpoint loaded onto a GPU holds the record's tensors there: read them on the host.
             packed = torch.as_tensor(record["silhouettes"]).cpu().numpy().astype(np.uint8)
             bits = np.unpackbits(packed, axis=1)[:, :BANK_SIDE ** 2]
+            views = record.get("views")
             return cls(torch.from_numpy(bits.astype(bool)),
                        torch.as_tensor(record["framings"]).detach().to("cpu", torch.float32),
-                       Framing(*(float(x) for x in record["framing"])))
+                       Framing(*(float(x) for x in record["framing"])),
+                       None if views is None else torch.as_tensor(views).to("cpu", torch.int64))
         except (KeyError, TypeError, ValueError) as err:
             raise ValueError(f"{name}: not a readable framing bank ({err})") from None
 
@@ -170,14 +204,15 @@ def build_framing_bank(dataset, progress: Optional[Callable[[int], None]] = None
     ``progress`` is called with 1 after each view."""
     check_int(max_renders, "max_renders", minimum=NUM_VIEWS)
     stride = -(-len(dataset) * NUM_VIEWS // max_renders)
-    sils, frames = [], []
+    sils, frames, views = [], [], []
     for v in range(NUM_VIEWS):
         framed, own, _ = frame_alphas(dataset.silhouettes(v)[::stride], framing)
         sils.append(bank_features(framed))
         frames.append(torch.from_numpy(own))
+        views.append(torch.full((len(own),), v, dtype=torch.int64))
         if progress is not None:
             progress(1)
-    return FramingBank(torch.cat(sils), torch.cat(frames), framing)
+    return FramingBank(torch.cat(sils), torch.cat(frames), framing, torch.cat(views))
 
 
 def stored_framing_bank(path) -> Optional[FramingBank]:
@@ -194,5 +229,5 @@ def store_framing_bank(path, bank: FramingBank) -> Path:
     return write_torch(Path(path), ckpt)
 
 
-__all__ = ["BANK_NEIGHBOURS", "BANK_SIDE", "FramingBank", "bank_features", "build_framing_bank", "frame_alphas",
+__all__ = ["BANK_NEIGHBOURS", "BANK_SIDE", "VOTE_NEIGHBOURS", "FramingBank", "bank_features", "build_framing_bank", "frame_alphas",
            "store_framing_bank", "stored_framing_bank"]

@@ -3,7 +3,10 @@ the network's ViewHead (``svr.models.camera``), with its place in the frame, the
 the world (the training data's canonical frame: y up, the front towards -z) to the camera's frame,
 and what a user needs in a JSON file. The camera is NMR's distance 2.732 and 30 degree field of
 view at an elevation of 30 degrees unless given or estimated otherwise (a head with the elevation
-output, trained on extra views); the estimate's azimuth is one of NMR's 24 (15 degrees apart)."""
+output, trained on extra views). The estimate weighs the head's probabilities of NMR's 24 views with
+the votes of the training silhouettes most like the photo (``FramingBank.view_votes``), where the
+checkpoint has them, and reads an azimuth between two views off the probabilities next to the most
+probable one (``view_between``)."""
 from __future__ import annotations
 
 import math
@@ -48,9 +51,10 @@ class InputCamera:
     """The camera of one input image.
 
     Attributes:
-        view: NMR view index (azimuth ``-15 * view`` degrees; fractional when given so).
+        view: NMR view index (azimuth ``-15 * view`` degrees; fractional when given so, and when
+            estimated).
         source: "given" or "estimated".
-        probability: the estimate's probability of ``view`` (None when given).
+        probability: the estimate's probability of its most probable NMR view (None when given).
         framing: where the object's silhouette sits in a training render from this camera (the
             estimate's; None when given or unknown).
         framing_source: what ``framing`` came from: "framing bank", "camera head" or "training
@@ -111,8 +115,36 @@ class InputCamera:
         return out
 
 
-def estimate_cameras(net, images: torch.Tensor) -> list[InputCamera]:
-    """The ViewHead's camera of (B, 4, S, S) RGBA images (``net.camera``, in eval mode).
+# How the head's view probabilities and the framing bank's votes combine, chosen on photos of the
+# demo preset's validation split at random cameras (docs/svr_inference.md, "The camera"):
+# probabilities * (votes + VOTE_FLOOR) ** VOTE_POWER; the floor keeps a view no neighbour voted for
+# possible. VIEW_SPAN: the neighbours on each side whose probabilities place the azimuth between views.
+VOTE_FLOOR, VOTE_POWER, VIEW_SPAN = 0.02, 0.5, 2
+
+
+def weigh_votes(probabilities: torch.Tensor, votes: Optional[torch.Tensor]) -> torch.Tensor:
+    """(B, 24) view probabilities weighed by (B, 24) votes (each row summing to 1; None: unchanged),
+    renormalised."""
+    if votes is None:
+        return probabilities
+    out = probabilities.double() * (votes.double() + VOTE_FLOOR) ** VOTE_POWER
+    return out / out.sum(dim=1, keepdim=True)
+
+
+def view_between(probabilities: torch.Tensor, span: int = VIEW_SPAN) -> torch.Tensor:
+    """(B,) float view coordinates in [0, 24) from (B, 24) probabilities: the most probable view,
+    moved by the probability-weighted mean offset of it and its ``span`` neighbours on each side (a
+    camera between two NMR views gives both some probability)."""
+    best = probabilities.argmax(dim=1)
+    offsets = torch.arange(-span, span + 1)
+    w = probabilities.double().gather(1, (best[:, None] + offsets[None]) % NUM_VIEWS)
+    return (best.double() + (w * offsets).sum(dim=1) / w.sum(dim=1).clamp_min(1e-12)) % NUM_VIEWS
+
+
+def estimate_cameras(net, images: torch.Tensor, votes: Optional[torch.Tensor] = None) -> list[InputCamera]:
+    """The ViewHead's camera of (B, 4, S, S) RGBA images (``net.camera``, in eval mode), its view
+    probabilities weighed by ``votes`` (B, 24) when given (``weigh_votes``), the azimuth read between
+    views (``view_between``); ``probability`` is that of the most probable NMR view.
 
     Raises:
         ValueError when the network has no ViewHead.
@@ -122,10 +154,11 @@ def estimate_cameras(net, images: torch.Tensor) -> list[InputCamera]:
         raise ValueError("this checkpoint has no camera head (model.camera), so it cannot estimate the input camera")
     device = next(head.parameters()).device
     est = head.estimate(images.to(device))
-    probs, views, framing = est.probabilities.cpu(), est.views.cpu(), est.framing.float().cpu()
+    probs = weigh_votes(est.probabilities.cpu(), None if votes is None else torch.as_tensor(votes).cpu())
+    views, framing = view_between(probs), est.framing.float().cpu()
     elevation = ([NMR_ELEVATION_DEG] * len(views) if est.elevation is None
                  else [float(e) for e in est.elevation.float().cpu()])
-    return [InputCamera(view=float(v), source="estimated", probability=float(p[v]),
+    return [InputCamera(view=float(v), source="estimated", probability=float(p.max()),
                         framing=Framing(*(float(x) for x in f)), elevation_deg=e)
             for v, p, f, e in zip(views.tolist(), probs, framing, elevation)]
 
@@ -141,4 +174,5 @@ def mesh_in_camera_frame(mesh, camera: InputCamera):
     return m
 
 
-__all__ = ["InputCamera", "check_elevation", "estimate_cameras", "mesh_in_camera_frame", "view_of_azimuth"]
+__all__ = ["InputCamera", "check_elevation", "estimate_cameras", "mesh_in_camera_frame", "view_between", "view_of_azimuth",
+           "weigh_votes"]

@@ -377,7 +377,7 @@ def infer_files(model: LoadedModel, images: Union[PathLike, Sequence[PathLike]],
 def _camera_words(camera: Optional[InputCamera]) -> Optional[str]:
     if camera is None or camera.source != "estimated":
         return None
-    return (f"camera estimated: NMR view {camera.view:g}, azimuth {camera.azimuth_deg:g} degrees, "
+    return (f"camera estimated: NMR view {camera.view:.2f}, azimuth {camera.azimuth_deg:.1f} degrees, "
             f"elevation {camera.elevation_deg:.0f}, probability {camera.probability:.2f}")
 
 
@@ -385,7 +385,8 @@ def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optiona
                      framed: bool, elevation: Optional[float] = None) -> tuple[torch.Tensor, Optional[InputCamera]]:
     """One photo's network input and camera: the camera given, or estimated by the camera head from
     the photo framed as the training renders' median (the head crops to the silhouette, so only the
-    resolution matters); then, when ``framed``, the photo framed as the camera's renders are: by
+    resolution matters), its view weighed by the votes of the model's framing bank where that keeps
+    the renders' views; then, when ``framed``, the photo framed as the camera's renders are: by
     the model's framing bank where it has one (``svr.inference.framing_bank``), else by the head's
     framing, else the median. ``elevation`` (degrees) replaces the given or estimated camera's."""
     head = getattr(m.net, "camera", None)
@@ -394,7 +395,9 @@ def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optiona
     if (head is not None and (camera is None or framed)) or (framed and m.framing_bank is not None):
         median, _ = frame_image(rgba, name, m.image_size, TRAINING_FRAMING)
         if head is not None:
-            estimate = estimate_cameras(m.net, rgba_to_input(median, name, m.image_size)[None])[0]
+            votes = m.framing_bank.view_votes(median[..., 3]) if m.framing_bank is not None and camera is None else None
+            estimate = estimate_cameras(m.net, rgba_to_input(median, name, m.image_size)[None],
+                                        None if votes is None else votes[None])[0]
             camera = camera if camera is not None else estimate
             framing, source = estimate.framing, "camera head"
         if m.framing_bank is not None:

@@ -91,11 +91,33 @@ def test_a_photo_of_a_training_render_gets_that_renders_framing():
     assert bank_error.sum() < 0.5 * median_error.sum()
 
 
+def test_the_nearest_renders_vote_for_their_views():
+    """A photo of a render in the bank gets its own view's vote from its nearest entry; the votes
+    are a distribution over the 24 views; a bank stored without views votes for none."""
+    alphas = shapes(4 * NUM_VIEWS, seed=2)
+    bank = build_framing_bank(Views(alphas))
+    assert bank.views.tolist() == [v for v in range(NUM_VIEWS) for _ in range(4)]  # each view's objects in turn
+    view = 9
+    rgba = np.zeros((200, 200, 4), np.uint8)
+    rgba[70:134, 30:94, 3] = alphas.reshape(4, NUM_VIEWS, 64, 64)[2, view]  # object 2 seen from view 9
+    median, _ = frame_image(rgba, "photo.png", 64, TRAINING_FRAMING)
+    own = bank.view_votes(median[..., 3], neighbours=1)
+    assert own.tolist() == [float(v == view) for v in range(NUM_VIEWS)]
+    votes = bank.view_votes(median[..., 3])
+    assert votes.shape == (NUM_VIEWS,) and float(votes.sum()) == pytest.approx(1.0) and float(votes.min()) >= 0
+    assert float(votes[view]) > 0
+    assert dataclasses.replace(bank, views=None).view_votes(median[..., 3]) is None
+    with pytest.raises(ValueError, match="views must be"):
+        dataclasses.replace(bank, views=torch.full((len(bank),), NUM_VIEWS))
+
+
 def test_the_record_round_trips_and_a_bad_one_is_named():
     bank = build_framing_bank(Views(shapes(48)))
     back = FramingBank.from_record(bank.record())
     assert torch.equal(back.silhouettes, bank.silhouettes) and torch.equal(back.framings, bank.framings)
-    assert back.framing == bank.framing
+    assert back.framing == bank.framing and torch.equal(back.views, bank.views)
+    older = {k: v for k, v in bank.record().items() if k != "views"}  # stored before the views were kept
+    assert FramingBank.from_record(older).views is None
     assert bank.record()["silhouettes"].shape == (48, BANK_SIDE ** 2 // 8)  # bit-packed
     with pytest.raises(ValueError, match="ckpt.ckpt: framing bank: not a readable framing bank"):
         FramingBank.from_record({**bank.record(), "side": 16}, "ckpt.ckpt: framing bank")
@@ -129,6 +151,19 @@ def test_the_checkpoint_keeps_the_bank_and_infer_frames_by_it(tmp_path):
     _, without = input_and_camera(dataclasses.replace(model, framing_bank=None), photo, "photo.png", None, True)
     assert dataclasses.astuple(without.framing) != pytest.approx((0.5, 0.45, 0.4), abs=1e-3)  # the head's
     assert isinstance(without.framing, Framing) and without.framing_source == "camera head"
+    # The bank's renders all vote for one view, which the untrained head rates like any other: the
+    # estimate follows them; a bank without views leaves the head's estimate alone, and so does a
+    # camera that is given.
+    head_view = round(without.view) % NUM_VIEWS
+    voted = (head_view + 12) % NUM_VIEWS
+    votes_for = dataclasses.replace(bank, views=torch.full((len(bank),), voted))
+    _, camera = input_and_camera(dataclasses.replace(model, framing_bank=votes_for), photo, "photo.png", None, True)
+    assert abs(camera.view - voted) < 1.0
+    _, camera = input_and_camera(dataclasses.replace(model, framing_bank=dataclasses.replace(bank, views=None)),
+                                 photo, "photo.png", None, True)
+    assert camera.view == without.view
+    _, camera = input_and_camera(dataclasses.replace(model, framing_bank=votes_for), photo, "photo.png", 5.0, True)
+    assert camera.view == 5.0
 
 
 @pytest.mark.cuda
@@ -166,6 +201,10 @@ def test_scoring_banks_the_checkpoints_that_have_a_camera_head_once(tmp_path, ca
     stamp = with_head.stat().st_mtime_ns
     assert bank_checkpoints([with_head, without], Data()) is None  # kept, not rebuilt
     assert with_head.stat().st_mtime_ns == stamp
+    # A bank stored before banks kept their renders' views is replaced by one that has them.
+    store_framing_bank(with_head, dataclasses.replace(stored_framing_bank(with_head), views=None))
+    assert stored_framing_bank(with_head).views is None
+    assert bank_checkpoints([with_head], Data()) == 48 and stored_framing_bank(with_head).views is not None
 
 
 def test_a_split_whose_silhouettes_all_touch_the_border_gets_no_bank(tmp_path, capsys):

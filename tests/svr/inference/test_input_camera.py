@@ -19,7 +19,8 @@ import renderer
 from sdfcommon.tooling.commands import compose
 from svr.infer import main
 from sdfcommon.tooling.settings import build_settings
-from svr.inference.input_camera import InputCamera, check_elevation, mesh_in_camera_frame, view_of_azimuth
+from svr.inference.input_camera import (InputCamera, check_elevation, mesh_in_camera_frame, view_between,
+                                        view_of_azimuth, weigh_votes)
 from svr.inference.prediction import load_model
 from svr.inference.reconstruction import infer_files
 from svr.models.checkpoint_layout import CHECKPOINT_KEY
@@ -52,6 +53,24 @@ def photo_jpeg(path: Path, size: tuple[int, int] = (160, 120), centre=(100, 50),
     rgb[centre[1] - 6:centre[1] + 6, centre[0] - radius - 10:centre[0] - radius + 2] = (200, 30, 30)
     Image.fromarray(rgb, "RGB").save(path, quality=92)
     return path
+
+
+def test_the_view_is_read_between_nmr_views_and_weighed_by_votes():
+    probs = torch.zeros(4, 24, dtype=torch.float64)
+    probs[0, 3] = 1.0                         # one view: exactly it
+    probs[1, [3, 4]] = 0.5                    # halfway
+    probs[2, [23, 0]] = torch.tensor([0.25, 0.75], dtype=torch.float64)  # across the wrap: a quarter of the way back from 0
+    probs[3, [5, 6, 12]] = torch.tensor([0.2, 0.4, 0.4], dtype=torch.float64)  # a tie broken by the lower view; 12 too far to count
+    assert view_between(probs).tolist() == pytest.approx([3.0, 3.5, 23.75, 6 - 1 / 3])
+    assert view_between(probs, span=0).tolist() == [3.0, 3.0, 0.0, 6.0]
+    head = torch.full((1, 24), 0.01, dtype=torch.float64)
+    head[0, 2], head[0, 14] = 0.4, 0.38       # the head's front and back, nearly tied
+    votes = torch.zeros(1, 24, dtype=torch.float64)
+    votes[0, 14] = 1.0                        # every neighbouring silhouette was seen from view 14
+    weighed = weigh_votes(head, votes)
+    assert weighed.sum().item() == pytest.approx(1.0) and int(weighed.argmax()) == 14
+    # No votes (a bank without views): the head's probabilities, unchanged.
+    assert weigh_votes(head, None) is head and int(weigh_votes(head, torch.full((1, 24), 1 / 24)).argmax()) == 2
 
 
 def test_azimuths_and_nmr_views():
