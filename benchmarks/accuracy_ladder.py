@@ -35,10 +35,12 @@ from svr.inference.calibration import Calibration
 
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENTS = {"demo": "demo", "bench": "bench"}  # configs/experiment/<name>.yaml of each preset
-# Row -> the overrides of its training run. camera_free: the image-only network (no pixel-aligned
+# Row -> the overrides of its training run. voxels: the training voxels alone (the recipe's image
+# terms, the hull term among them, off). camera_free: the image-only network (no pixel-aligned
 # head, which projects into the input camera) and a level-only calibration (the carvings project
 # into the input camera too).
-TRAINED = {"shipped": (), "voxels": ("loss=voxels",), "camera_free": ("model=small", "calibrate_carving=false")}
+TRAINED = {"shipped": (), "voxels": ("loss=voxels", "loss.weights.hull=0"),
+           "camera_free": ("model=small", "calibrate_carving=false")}
 # Row key -> (label, source): a trained run's per_object.csv column, or the lookup ceiling. A
 # baseline's column (every one but iou_mean) is the same on every run of the same data, so where the
 # named run lacks it (scored before the baseline existed) another run's is read.
@@ -302,7 +304,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             f"category). Side views: the silhouette IoU from the views 90 degrees either side of the "
             f"input (`svr.nmr.side_views`; mean over categories, interval as above), of the trained rows and of the "
             f"baselines whose evaluation scored them (`svr.evaluation.baselines.SIDE_BASELINES`). Trained rows: `python -m svr.demo experiment={EXPERIMENTS[args.preset]}`"
-            f"{' (+ `loss=voxels` for the 3D-supervised one)' if 'voxels' in args.rows else ''}"
+            f"{' (+ `' + ' '.join(TRAINED['voxels']) + '` for the 3D-supervised one)' if 'voxels' in args.rows else ''}"
             f"{camera_free}"
             f"{' with ' + ' '.join(args.overrides) if args.overrides else ''}."
             f"{'' if 'voxels' in args.rows else ' The 3D-supervised row was not run (not in `--rows`).'}"

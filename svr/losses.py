@@ -292,7 +292,7 @@ class LossWeights:
         silhouette_kind: "mse" (paper: L2) or "iou".
         voxel_kind: the 3D term's form (``voxel_loss``'s ``kind``).
         hull: weight of ``hull_loss`` (0: the paper's recipe); hull_margin, hull_tolerance: its
-            margin and tolerance in voxels.
+            margin and tolerance in voxels; hull_stride: its ``stride``.
     """
 
     silhouette: float = 1.0
@@ -306,6 +306,7 @@ class LossWeights:
     hull: float = 0.0
     hull_margin: float = 2.0
     hull_tolerance: float = 1.0
+    hull_stride: int = 2
 
     def __post_init__(self) -> None:
         for name in ("silhouette", "shading", "voxel", "eikonal", "laplacian", "hull"):
@@ -313,6 +314,7 @@ class LossWeights:
         check_positive(self.band_mu, "band_mu")
         check_positive(self.hull_margin, "hull_margin")
         check_float(self.hull_tolerance, "hull_tolerance", minimum=0)
+        check_int(self.hull_stride, "hull_stride", minimum=1)
         if self.silhouette_kind not in SILHOUETTE_KINDS:
             raise ValueError(f"silhouette_kind must be one of {SILHOUETTE_KINDS}, got {self.silhouette_kind!r}")
         if self.voxel_kind not in VOXEL_KINDS:

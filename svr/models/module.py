@@ -180,8 +180,8 @@ class SVRLightningModule(pl.LightningModule):
         vox = (voxel_loss(sdf, self.net.half_side, batch.voxels, self.loss_weights.voxel_kind)
                if self.loss_weights.voxel > 0 else None)
         w = self.loss_weights
-        hull = (hull_loss(sdf, self.net.half_side, batch.images[:, :, 3], batch.views, w.hull_margin, w.hull_tolerance)
-                if w.hull > 0 else None)
+        hull = (hull_loss(sdf, self.net.half_side, batch.images[:, :, 3], batch.views, w.hull_margin, w.hull_tolerance,
+                          w.hull_stride) if w.hull > 0 else None)
         return total_loss(img, sdf, self.net.voxel_size, self.loss_weights, vox, hull)
 
     def _trainable(self) -> list[torch.nn.Parameter]:

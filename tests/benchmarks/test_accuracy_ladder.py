@@ -87,6 +87,7 @@ def test_side_views_column_for_the_trained_rows():
 def test_camera_free_rows():
     assert set(READS) == set(ROWS) and "model=small" in TRAINED["camera_free"]
     assert "calibrate_carving=false" in TRAINED["camera_free"]
+    assert TRAINED["voxels"] == ("loss=voxels", "loss.weights.hull=0")  # the voxels alone supervise it
     lookup = {("chair", 0): 0.7, ("chair", 1): 0.8, ("table", 0): 0.6}
     shipped, camera_free = _objects(1.0), _objects(0.8)
     for row in camera_free.values():

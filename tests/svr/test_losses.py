@@ -287,6 +287,8 @@ def test_bad_input_names_the_argument():
         LossWeights(hull_margin=0.0)
     with pytest.raises(ValueError, match="hull_tolerance"):
         LossWeights(hull_tolerance=-1.0)
+    with pytest.raises(ValueError, match="hull_stride"):
+        LossWeights(hull_stride=0)
     with pytest.raises(ValueError, match="alpha"):
         hull_loss(_sphere(batch=1), 0.6, torch.zeros(1, 64, 64), torch.tensor([[0]]))
     with pytest.raises(ValueError, match="view_ids"):

@@ -254,12 +254,13 @@ def test_voxel_supervised_stage_learns_without_rendering(monkeypatch):
 
 
 def test_hull_term_is_in_the_stage_loss_and_falls_when_trained_on():
-    """loss.weights.hull > 0: compute_loss adds the supervised views' hull term (weighted), and a few
-    steps on it alone (the silhouette weight near 0) lower it."""
+    """loss.weights.hull > 0: compute_loss adds the supervised views' hull term (weighted, at its
+    stride), and a few steps on it alone (the silhouette weight near 0) lower it."""
     from svr.losses import LossWeights, hull_loss
 
     torch.manual_seed(0)
-    weights = LossWeights(silhouette=1e-6, shading=0.0, hull=1.0, hull_tolerance=0.0, eikonal=0.0, laplacian=0.0)
+    weights = LossWeights(silhouette=1e-6, shading=0.0, hull=1.0, hull_tolerance=0.0, hull_stride=3, eikonal=0.0,
+                          laplacian=0.0)
     module = SVRLightningModule(tiny_net(), stage="coarse", render_size=16, loss_weights=weights)
     batch = fake_batch()
     batch.images[:, :, 3] = 0.0
@@ -269,7 +270,7 @@ def test_hull_term_is_in_the_stage_loss_and_falls_when_trained_on():
     for _ in range(15):
         sdf = module(batch.images[:, 0])
         terms = module.compute_loss(batch, sdf)
-        expected = hull_loss(sdf, module.net.half_side, batch.images[:, :, 3], batch.view_ids, 2.0, 0.0)
+        expected = hull_loss(sdf, module.net.half_side, batch.images[:, :, 3], batch.view_ids, 2.0, 0.0, stride=3)
         assert terms.hull.item() == pytest.approx(expected.item(), rel=1e-5)
         assert terms.total.item() == pytest.approx((terms.hull + 1e-6 * terms.silhouette).item(), rel=1e-4)
         opt.zero_grad()
