@@ -188,9 +188,10 @@ def hull_loss(sdf: torch.Tensor, half_side: float, alpha: torch.Tensor, view_ids
     """How far each predicted shape leaves the visual hull of its supervised views, in voxels.
 
     Why: the soft silhouette's gradient reaches only the samples near each ray's closest approach
-    to the surface; this term reaches every sample the views show as background. On the demo it
-    raised the raw output's test IoU by 0.019 and 0.006 (two seeds) and left the calibration less
-    to add, without thinning the side views (docs/training_recipe.md). A shape seen with a
+    to the surface; this term reaches every sample the views show as background. On the demo with
+    the shape prior it raised the test IoU by 0.014 and 0.007 (two seeds) and the side views by
+    0.010, and the calibration's level fell from 1.25 to 0.75 voxels (docs/training_recipe.md); the
+    demo uses it. A shape seen with a
     silhouette lies inside that view's cone of rays, whose field (``silhouette_cone_sdf``) therefore bounds its
     signed distance from below, ``sdf >= cone``, everywhere; the largest of the V views' cones
     (their visual hull) is the tightest such bound. The loss is the mean over the grid samples of
