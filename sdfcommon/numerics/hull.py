@@ -13,12 +13,17 @@ from torch.nn import functional as F
 
 from renderer import Cameras
 
+try:
+    from numba import njit
+except ImportError:  # scipy's distance transform, image by image
+    njit = None
 
-def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
-    """(B, H, W) alpha -> (B, H, W) signed distance (pixels) from each pixel centre to the
-    silhouette's edge, taken half a pixel outside the silhouette's outer pixel centres: positive
-    outside (alpha < threshold), negative inside."""
-    masks = (alpha.detach().cpu().numpy() >= threshold)
+_FAR = 1e20  # a squared distance no image holds: "no feature here" in the transforms below
+
+
+def _signed_distances_scipy(masks: np.ndarray) -> np.ndarray:
+    """``signed_pixel_distance``'s values from (B, H, W) bool masks with scipy, image by image: the
+    specification ``_signed_distances_numba`` is tested against."""
     out = np.empty(masks.shape, np.float32)
     for i, inside in enumerate(masks):
         if not inside.any():
@@ -30,6 +35,101 @@ def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.
         outside_d = ndimage.distance_transform_edt(~inside)  # to the nearest silhouette pixel
         inside_d = ndimage.distance_transform_edt(inside)   # to the nearest background pixel
         out[i] = np.where(inside, 0.5 - inside_d, outside_d - 0.5)
+    return out
+
+
+if njit is not None:
+
+    @njit(cache=True)
+    def _lower_envelope(f, d, v, z):  # pragma: no cover - compiled
+        """The 1D squared distance transform of ``f`` into ``d`` (Felzenszwalb and Huttenlocher's
+        lower envelope of parabolas; ``v``, ``z`` are work arrays of n and n + 1)."""
+        n = f.shape[0]
+        k = 0
+        v[0] = 0
+        z[0] = -np.inf
+        z[1] = np.inf
+        for q in range(1, n):
+            s = ((f[q] + q * q) - (f[v[k]] + v[k] * v[k])) / (2.0 * q - 2.0 * v[k])
+            while s <= z[k]:
+                k -= 1
+                s = ((f[q] + q * q) - (f[v[k]] + v[k] * v[k])) / (2.0 * q - 2.0 * v[k])
+            k += 1
+            v[k] = q
+            z[k] = s
+            z[k + 1] = np.inf
+        k = 0
+        for q in range(n):
+            while z[k + 1] < q:
+                k += 1
+            d[q] = (q - v[k]) * (q - v[k]) + f[v[k]]
+
+    @njit(cache=True)
+    def _squared_distances(features, out):  # pragma: no cover - compiled
+        """``out[y, x]``: the squared distance from pixel (y, x) to the nearest True of ``features``
+        (H, W), exact: along each column (two sweeps), then along each row (``_lower_envelope``)."""
+        h, w = features.shape
+        n = max(h, w)
+        f = np.empty(n)
+        d = np.empty(n)
+        v = np.empty(n, np.int64)
+        z = np.empty(n + 1)
+        for x in range(w):
+            last = -1  # the nearest feature above, then below
+            for y in range(h):
+                if features[y, x]:
+                    last = y
+                out[y, x] = _FAR if last < 0 else float((y - last) * (y - last))
+            last = -1
+            for y in range(h - 1, -1, -1):
+                if features[y, x]:
+                    last = y
+                if last >= 0:
+                    below = float((last - y) * (last - y))
+                    if below < out[y, x]:
+                        out[y, x] = below
+        for y in range(h):
+            for x in range(w):
+                f[x] = out[y, x]
+            _lower_envelope(f[:w], d[:w], v, z)
+            for x in range(w):
+                out[y, x] = d[x]
+
+    @njit(cache=True)
+    def _signed_distances_numba(masks):  # pragma: no cover - compiled
+        """``_signed_distances_scipy``'s values (the same exact distances), in one compiled pass."""
+        b, h, w = masks.shape
+        out = np.empty((b, h, w), np.float32)
+        to_inside = np.empty((h, w))
+        to_outside = np.empty((h, w))
+        for i in range(b):
+            inside = masks[i]
+            count = inside.sum()
+            if count == 0:
+                out[i] = 1e6
+                continue
+            if count == h * w:
+                out[i] = -1e6
+                continue
+            _squared_distances(inside, to_inside)     # from outside pixels to the silhouette
+            _squared_distances(~inside, to_outside)   # from inside pixels to the background
+            for y in range(h):
+                for x in range(w):
+                    if inside[y, x]:
+                        out[i, y, x] = 0.5 - np.sqrt(to_outside[y, x])
+                    else:
+                        out[i, y, x] = np.sqrt(to_inside[y, x]) - 0.5
+        return out
+
+
+def signed_pixel_distance(alpha: torch.Tensor, threshold: float = 0.5) -> torch.Tensor:
+    """(B, H, W) alpha -> (B, H, W) signed distance (pixels) from each pixel centre to the
+    silhouette's edge, taken half a pixel outside the silhouette's outer pixel centres: positive
+    outside (alpha < threshold), negative inside. Exact Euclidean distances, compiled (numba; the
+    training's hull term asks for 128 images a step, which scipy's transform took 23 ms for, this
+    one a few), the same values as scipy's ``distance_transform_edt``."""
+    masks = np.ascontiguousarray(alpha.detach().cpu().numpy() >= threshold)
+    out = _signed_distances_numba(masks) if njit is not None else _signed_distances_scipy(masks)
     return torch.from_numpy(out).to(alpha.device)
 
 
