@@ -59,7 +59,7 @@ ROWS = {
 READS = {
     "oracle": "the exact shape",
     "voxels": "the input camera (as the shipped recipe)",
-    "shipped": "the input camera (the pixel-aligned head, the calibration's carving)",
+    "shipped": "the input camera (the pixel-aligned head, its shape prior's retrieval, the calibration's carving)",
     "camera_free": "nothing",
     "lookup": "the test object's voxels",
     "retrieval": "the input camera",
