@@ -6,15 +6,15 @@ exact shape as the dataset's views were); each render becomes a photo: scaled by
 twice its size), placed up to 10% of the image off centre on a 240^2 white canvas, saved as a JPEG
 with no alpha. ``svr.infer``'s own steps then read it (plain background removed), estimate its
 camera with the checkpoint's head and its framing bank's votes, frame it (by that bank, built here
-where the checkpoint has none or one without the renders' views) and reconstruct it (``svr.inference.reconstruction``). Beside it on the same images, by the
-benchmark's voxel IoU in the canonical frame, with 95% bootstrap intervals over objects: the same
-photos given their true camera and framing (the framing the render had); given their true view
-with the framing estimated (by the bank, as ``svr.infer`` does, and by the camera head, as it did
-before); the original renders given their true camera (the benchmark's own protocol); and
-silhouette retrieval in any view (camera-free) from the framed photo. Also the azimuth error of
-the estimate and the photos per second of the pipeline (read, background, camera, framing,
-network; not the meshes and previews the command also writes). Writes ``--out`` (markdown) and a
-JSON beside it.
+where the checkpoint has none or one without the renders' views) and reconstruct it
+(``svr.inference.reconstruction``). Beside it on the same images, by the benchmark's voxel IoU in
+the canonical frame, with 95% bootstrap intervals over objects: the same photos given their true
+camera and framing (the framing the render had); given their true view with the framing estimated
+(by the bank, as ``svr.infer`` does, and by the camera head, as it did before); the original
+renders given their true camera (the benchmark's own protocol); and silhouette retrieval in any
+view (camera-free) from the framed photo. Also the azimuth error of the estimate and the photos per
+second of the pipeline (read, background, camera, framing, network; not the meshes and previews the
+command also writes). Writes ``--out`` (markdown) and a JSON beside it.
 """
 from __future__ import annotations
 

@@ -137,37 +137,52 @@ class FramingBank:
     def __len__(self) -> int:
         return len(self.silhouettes)
 
-    def _nearest(self, framed_alpha: np.ndarray, neighbours: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """The indices of the ``neighbours`` entries nearest a framed (S, S) alpha by silhouette IoU,
-        and their weights (the IoU to the power ``WEIGHT_POWER``)."""
+    def _similarity(self, framed_alpha: np.ndarray) -> torch.Tensor:
+        """(N,) float64: each entry's silhouette IoU with a framed (S, S) alpha."""
         q = np.packbits(bank_features(np.asarray(framed_alpha)[None])[0].numpy().astype(np.uint8))
         inter = _popcount(self._packed & q).sum(1, dtype=np.int64)
         union = self._area + int(_popcount(q).sum()) - inter
-        iou = torch.from_numpy(inter / np.maximum(union, 1))
+        return torch.from_numpy(inter / np.maximum(union, 1))
+
+    def _nearest(self, iou: torch.Tensor, neighbours: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """The indices of the ``neighbours`` entries of highest ``iou`` and their weights (the IoU to
+        the power ``WEIGHT_POWER``)."""
         top = torch.topk(iou, min(int(neighbours), len(self))).indices
         return top, iou[top].double() ** WEIGHT_POWER
 
-    def estimate(self, framed_alpha: np.ndarray, neighbours: int = BANK_NEIGHBOURS) -> Framing:
-        """The framing of a photo whose (S, S) uint8 alpha has been framed to ``self.framing``: the
-        mean of its ``neighbours`` nearest entries' framings (by silhouette IoU), weighted by the IoU
-        to the power ``WEIGHT_POWER``."""
-        top, w = self._nearest(framed_alpha, neighbours)
+    def _framing_of(self, iou: torch.Tensor, neighbours: int) -> Framing:
+        top, w = self._nearest(iou, neighbours)
         if float(w.sum()) <= 0.0:  # nothing overlaps at all: the median framing
             return self.framing
         f = (self.framings[top].double() * w[:, None]).sum(0) / w.sum()
         return Framing(*(float(x) for x in f))
 
-    def view_votes(self, framed_alpha: np.ndarray, neighbours: int = VOTE_NEIGHBOURS) -> Optional[torch.Tensor]:
-        """(24,) float64 summing to 1: the views of the ``neighbours`` entries nearest a photo's
-        framed alpha (as ``estimate`` reads it), each weighted as there; None for a bank without
-        views, or when nothing overlaps the photo."""
+    def _votes_of(self, iou: torch.Tensor, neighbours: int) -> Optional[torch.Tensor]:
         if self.views is None:
             return None
-        top, w = self._nearest(framed_alpha, neighbours)
+        top, w = self._nearest(iou, neighbours)
         if float(w.sum()) <= 0.0:
             return None
         votes = torch.zeros(NUM_VIEWS, dtype=torch.float64).index_add_(0, self.views[top], w)
         return votes / votes.sum()
+
+    def estimate(self, framed_alpha: np.ndarray, neighbours: int = BANK_NEIGHBOURS) -> Framing:
+        """The framing of a photo whose (S, S) uint8 alpha has been framed to ``self.framing``: the
+        mean of its ``neighbours`` nearest entries' framings (by silhouette IoU), weighted by the IoU
+        to the power ``WEIGHT_POWER``."""
+        return self._framing_of(self._similarity(framed_alpha), neighbours)
+
+    def view_votes(self, framed_alpha: np.ndarray, neighbours: int = VOTE_NEIGHBOURS) -> Optional[torch.Tensor]:
+        """(24,) float64 summing to 1: the views of the ``neighbours`` entries nearest a photo's
+        framed alpha (as ``estimate`` reads it), each weighted as there; None for a bank without
+        views, or when nothing overlaps the photo."""
+        return self._votes_of(self._similarity(framed_alpha), neighbours)
+
+    def look_up(self, framed_alpha: np.ndarray) -> tuple[Framing, Optional[torch.Tensor]]:
+        """``estimate`` and ``view_votes`` of one photo (their default neighbours), from one pass over
+        the bank."""
+        iou = self._similarity(framed_alpha)
+        return self._framing_of(iou, BANK_NEIGHBOURS), self._votes_of(iou, VOTE_NEIGHBOURS)
 
     def record(self) -> dict[str, Any]:
         """What the checkpoint keeps (``from_record`` reads it back): the silhouettes bit-packed."""
@@ -229,5 +244,5 @@ def store_framing_bank(path, bank: FramingBank) -> Path:
     return write_torch(Path(path), ckpt)
 
 
-__all__ = ["BANK_NEIGHBOURS", "BANK_SIDE", "VOTE_NEIGHBOURS", "FramingBank", "bank_features", "build_framing_bank", "frame_alphas",
-           "store_framing_bank", "stored_framing_bank"]
+__all__ = ["BANK_NEIGHBOURS", "BANK_SIDE", "VOTE_NEIGHBOURS", "FramingBank", "bank_features", "build_framing_bank",
+           "frame_alphas", "store_framing_bank", "stored_framing_bank"]

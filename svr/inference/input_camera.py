@@ -174,5 +174,5 @@ def mesh_in_camera_frame(mesh, camera: InputCamera):
     return m
 
 
-__all__ = ["InputCamera", "check_elevation", "estimate_cameras", "mesh_in_camera_frame", "view_between", "view_of_azimuth",
-           "weigh_votes"]
+__all__ = ["InputCamera", "check_elevation", "estimate_cameras", "mesh_in_camera_frame", "view_between",
+           "view_of_azimuth", "weigh_votes"]

@@ -394,14 +394,14 @@ def input_and_camera(m: LoadedModel, rgba: np.ndarray, name: str, given: Optiona
     framing, source = TRAINING_FRAMING, "training median"
     if (head is not None and (camera is None or framed)) or (framed and m.framing_bank is not None):
         median, _ = frame_image(rgba, name, m.image_size, TRAINING_FRAMING)
+        banked, votes = m.framing_bank.look_up(median[..., 3]) if m.framing_bank is not None else (None, None)
         if head is not None:
-            votes = m.framing_bank.view_votes(median[..., 3]) if m.framing_bank is not None and camera is None else None
             estimate = estimate_cameras(m.net, rgba_to_input(median, name, m.image_size)[None],
-                                        None if votes is None else votes[None])[0]
+                                        votes[None] if votes is not None and camera is None else None)[0]
             camera = camera if camera is not None else estimate
             framing, source = estimate.framing, "camera head"
-        if m.framing_bank is not None:
-            framing, source = m.framing_bank.estimate(median[..., 3]), "framing bank"
+        if banked is not None:
+            framing, source = banked, "framing bank"
     if camera is not None and elevation is not None:
         camera = dataclasses.replace(camera, elevation_deg=float(elevation))
     if not framed:

@@ -106,7 +106,10 @@ def test_the_nearest_renders_vote_for_their_views():
     votes = bank.view_votes(median[..., 3])
     assert votes.shape == (NUM_VIEWS,) and float(votes.sum()) == pytest.approx(1.0) and float(votes.min()) >= 0
     assert float(votes[view]) > 0
+    framing, looked = bank.look_up(median[..., 3])  # both from one pass over the bank
+    assert framing == bank.estimate(median[..., 3]) and torch.equal(looked, votes)
     assert dataclasses.replace(bank, views=None).view_votes(median[..., 3]) is None
+    assert dataclasses.replace(bank, views=None).look_up(median[..., 3])[1] is None
     with pytest.raises(ValueError, match="views must be"):
         dataclasses.replace(bank, views=torch.full((len(bank),), NUM_VIEWS))
 

@@ -59,8 +59,8 @@ def test_the_view_is_read_between_nmr_views_and_weighed_by_votes():
     probs = torch.zeros(4, 24, dtype=torch.float64)
     probs[0, 3] = 1.0                         # one view: exactly it
     probs[1, [3, 4]] = 0.5                    # halfway
-    probs[2, [23, 0]] = torch.tensor([0.25, 0.75], dtype=torch.float64)  # across the wrap: a quarter of the way back from 0
-    probs[3, [5, 6, 12]] = torch.tensor([0.2, 0.4, 0.4], dtype=torch.float64)  # a tie broken by the lower view; 12 too far to count
+    probs[2, [23, 0]] = torch.tensor([0.25, 0.75], dtype=torch.float64)  # across the wrap: a quarter back from 0
+    probs[3, [5, 6, 12]] = torch.tensor([0.2, 0.4, 0.4], dtype=torch.float64)  # a tie: the lower view; 12 too far
     assert view_between(probs).tolist() == pytest.approx([3.0, 3.5, 23.75, 6 - 1 / 3])
     assert view_between(probs, span=0).tolist() == [3.0, 3.0, 0.0, 6.0]
     head = torch.full((1, 24), 0.01, dtype=torch.float64)
