@@ -125,8 +125,9 @@ class FramingBank:
         if self.views is not None:
             views = torch.as_tensor(self.views).to("cpu", torch.int64)
             if views.shape != (len(self.silhouettes),) or bool(((views < 0) | (views >= NUM_VIEWS)).any()):
+                span = f", values {int(views.min())}..{int(views.max())}" if views.numel() else ""
                 raise ValueError(f"views must be ({len(self.silhouettes)},) NMR views in [0, {NUM_VIEWS}), "
-                                 f"got shape {tuple(views.shape)}")
+                                 f"got shape {tuple(views.shape)}{span}")
             object.__setattr__(self, "views", views)
         if len(self.silhouettes) == 0:
             raise ValueError("a framing bank needs at least one render (every silhouette touched the border?)")
