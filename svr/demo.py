@@ -1,8 +1,8 @@
 """The CPU demo, ``python -m svr.demo`` (what ``make demo`` runs; configs/demo.yaml): trains
 ``experiment=demo`` from scratch on the procedural data into ``<out>/train`` (a stopped run resumes
 with its saved config when the command runs again, a finished one is only evaluated again), then
-calibrates its checkpoints on the validation split (``svr.evaluation.calibration_search``; once, kept in
-the checkpoints) and scores it by the benchmark protocol with the coarse stage and every baseline
+calibrates its last checkpoint on the validation split (``svr.evaluation.calibration_search``; once,
+kept in the checkpoint) and scores it by the benchmark protocol with the coarse stage and every baseline
 as extra rows, and writes into ``out``: the evaluation's files (``table.md``, ``table.csv``,
 ``iou.json``, ``per_object.csv``, ``per_image.csv``), ``timings.json`` (training seconds over
 resumes, this command's wall and evaluation seconds, per stage the steps planned and reached),
@@ -40,11 +40,12 @@ class DemoSettings(TrainSettings):
         out: the demo's folder (from the working directory).
         eval_only: evaluate the finished run in ``<out>/train``, train nothing.
         fresh: delete ``<out>/train`` and train from scratch.
-        protocol_workers: processes for the evaluation's mesh voxelisation (0: this one).
+        protocol_workers: processes for the mesh voxelisation (0: this one): the calibration search's,
+            and the evaluation's where they take at most half the cores or the network runs on a GPU.
         quiet: no progress bars.
-        calibrate: calibrate the checkpoints on the validation split and score them calibrated
+        calibrate: calibrate the last checkpoint on the validation split and score both stages so
             (false: score the network's raw output).
-        recalibrate: search the calibrations again even where the checkpoints hold one.
+        recalibrate: search the calibration again even where the checkpoint holds one.
         calibrate_carving: let the calibration carve by the input silhouette's cone (which reads the
             input camera); false: a level only, so that the scored predictions read only the image.
     """

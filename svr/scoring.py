@@ -1,17 +1,20 @@
 """Scores a finished training run the way the demo reports it: its last stage's checkpoint, its
 coarse stage's and every baseline (``svr.evaluation.baselines``) on the same images by the benchmark
 protocol (``score_run``), then the evaluation's files, once, beside the demo's pictures of
-predictions and meshes (``RunScores.write``). Each checkpoint is first calibrated on the validation
-split (``svr.evaluation.calibration_search``), once: the choice is stored in the checkpoint, so
-inference from it applies the same; so is a framing bank for photos (``bank_checkpoints``)."""
+predictions and meshes (``RunScores.write``). The last stage's checkpoint is first calibrated on the
+validation split (``svr.evaluation.calibration_search``), once: the choice is stored in the checkpoint,
+so inference from it applies the same (the coarse stage's row goes through that calibration too); so
+is a framing bank for photos (``bank_checkpoints``)."""
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Optional
 
+import torch
 from hydra.utils import instantiate
 
 import renderer
@@ -36,8 +39,8 @@ class RunScores:
         result: the last stage's evaluation, with the baselines on the same images.
         label: the last stage's row name in the table.
         extra: more rows of the table (the coarse stage alone, when it is another checkpoint).
-        calibrations: {stage: the calibration search's record} of each checkpoint scored (empty when
-            none was applied).
+        calibrations: {stage: the calibration search's record} of the last stage's checkpoint (empty
+            when none was applied; the coarse stage's row went through the same calibration).
         pictures: ``predictions.png`` and the meshes, already written.
     """
 
@@ -117,30 +120,30 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     """Scores a finished run with the benchmark protocol: its last stage's checkpoint, its coarse
     stage's and every baseline (``svr.evaluation.baselines``) on the same images; draws
     ``predictions.png`` and ``meshes/`` into ``out_dir`` (the tables are ``RunScores.write``'s). With
-    ``calibrate`` each checkpoint is calibrated first (``calibrate_checkpoint``; with
-    ``recalibrate`` searched again even where one is stored; without ``carving``, a level only);
-    without, none is applied. Predictions run on ``device`` ("auto": CUDA when available); the
-    protocol's voxelisation on the CPU."""
+    ``calibrate`` the last stage's checkpoint is calibrated first (``calibrate_checkpoint``; with
+    ``recalibrate`` searched again even where one is stored; without ``carving``, a level only) and
+    both checkpoints are scored through its calibration; without, none is applied. Predictions run
+    on ``device`` ("auto": CUDA when available); the protocol's voxelisation on the CPU, in
+    ``protocol_workers`` processes for the calibration search and, where cores are spare, the
+    evaluation (``_evaluation_workers``)."""
     dm = instantiate(settings.data)
     dm.prepare_data()
     schedule = list(settings.stage.schedule)
     final_ckpt, coarse_ckpt = run.best_or_final(schedule[-1]), run.best_or_final(schedule[0])
     calibrations = {}
     if calibrate:
-        for stage, path in ((schedule[-1], final_ckpt), (schedule[0], coarse_ckpt)):
-            if stage not in calibrations:
-                calibrations[stage] = calibrate_checkpoint(path, dm, progress, again=recalibrate, carving=carving,
-                                                           device=device, protocol_workers=protocol_workers)
-    bank_checkpoints([final_ckpt, coarse_ckpt], dm, progress)
-
-    def load(path: Path):
-        model = load_model(path, device)
-        return model if calibrate else dataclasses.replace(model, calibration=None)
-
-    kwargs = dict(progress=progress, protocol_workers=protocol_workers)  # batches: the data's eval_batch_size
-    model = load(final_ckpt)
-    result = evaluate(model, dm, split, **kwargs)
-    coarse_model = load(coarse_ckpt)
+        calibrations[schedule[-1]] = calibrate_checkpoint(final_ckpt, dm, progress, again=recalibrate, carving=carving,
+                                                          device=device, protocol_workers=protocol_workers)
+    bank_checkpoints([final_ckpt], dm, progress)
+    model = load_model(final_ckpt, device)
+    if not calibrate:
+        model = dataclasses.replace(model, calibration=None)
+    # The coarse stage's checkpoint goes through the full model's calibration (not a search of its
+    # own: 25 s of the demo's 12 minutes), so its row differs from the full model's by the later
+    # stages' training alone.
+    coarse_model = dataclasses.replace(load_model(coarse_ckpt, device), calibration=model.calibration)
+    kwargs = dict(progress=progress, protocol_workers=_evaluation_workers(protocol_workers, model.device))
+    result = evaluate(model, dm, split, **kwargs)  # batches: the data's eval_batch_size
     extra = {}
     if coarse_ckpt != final_ckpt:
         # Only its voxel IoU row is shown: no side-view renders.
@@ -150,6 +153,17 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
              renderer.Scene(effects=("shading",), background=(1.0, 1.0, 1.0)))
     pictures = showcase(model, coarse_model, dm.dataset(split), dm.categories, scene, out_dir)
     return RunScores(result, f"ours ({schedule[-1]} stage, {result.output})", extra, calibrations, list(pictures))
+
+
+def _evaluation_workers(protocol_workers: int, device) -> int:
+    """The voxelisation workers the evaluation gets: ``protocol_workers`` where the network leaves
+    cores to them (it runs on a GPU, or the workers take at most half the cores), else none. On the 2-core machine the evaluation of the demo's test split took
+    39 s without workers and 48 s with two (the network's torch threads and the workers contend),
+    while the calibration search, which voxelises a score of candidates per prediction, took 23 s
+    with two and 39 s without."""
+    cores = os.cpu_count() or 1
+    on_gpu = torch.device(device).type == "cuda"
+    return protocol_workers if on_gpu or 2 * protocol_workers <= cores else 0
 
 
 __all__ = ["RunScores", "bank_checkpoints", "calibrate_checkpoint", "score_run"]

@@ -9,6 +9,7 @@ import pytest
 
 from sdfcommon.tooling.commands import compose
 from sdfcommon.tooling.settings import build_settings
+from svr import scoring
 from svr.demo import main, run
 from svr.evaluation import protocol
 from svr.training.run_folder import RunFolder
@@ -38,6 +39,10 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys, monkeypatch):
     real_side_view_iou = protocol.side_view_iou
     monkeypatch.setattr(protocol, "side_view_iou",
                         lambda sdf, *a, **k: side_scored.append(len(sdf)) or real_side_view_iou(sdf, *a, **k))
+    scored_calibrations = []
+    real_evaluate = scoring.evaluate
+    monkeypatch.setattr(scoring, "evaluate",
+                        lambda model, *a, **k: scored_calibrations.append(model.calibration) or real_evaluate(model, *a, **k))
     demo(args)
     printed = capsys.readouterr().out
     for row in ("ours (joint stage, refined)", "coarse stage alone", "mean shape", "category mean shape",
@@ -60,13 +65,16 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys, monkeypatch):
     assert timings["train_seconds"] > 0
     assert timings["steps"] == {s: {"planned": 2, "reached": 2} for s in ("coarse", "refine", "joint")}
     assert "steps (planned / reached): coarse 2 / 2, refine 2 / 2, joint 2 / 2" in printed
-    # Each checkpoint scored was calibrated on the validation split (the tiny model has no mirror
-    # look: no carving, the input view, each at 7 levels), and the choice is kept in the checkpoint.
-    for stage in ("joint", "coarse"):
-        record = summary["calibration_search"][stage]
-        assert record["split"] == "val" and len(record["candidates"]) == 14
-        assert record["calibrated_iou"] == max(c["iou"] for c in record["candidates"]) >= record["uncalibrated_iou"]
-    assert printed.count("on the validation split in") == 2
+    # The last stage's checkpoint was calibrated on the validation split (the tiny model has no
+    # mirror look: no carving, the input view, each at 7 levels), and the choice is kept in it; the
+    # coarse stage's row went through the same calibration, searched once.
+    record = summary["calibration_search"]["joint"]
+    assert set(summary["calibration_search"]) == {"joint"}
+    assert record["split"] == "val" and len(record["candidates"]) == 14
+    assert record["calibrated_iou"] == max(c["iou"] for c in record["candidates"]) >= record["uncalibrated_iou"]
+    assert printed.count("on the validation split in") == 1
+    assert len(scored_calibrations) == 2 and scored_calibrations[0] is not None
+    assert scored_calibrations[1] == scored_calibrations[0]  # the full model's, then the coarse stage's
     assert summary["calibration"].startswith("carve ")  # what the scored predictions went through
 
     # A finished run is evaluated again, not retrained.
@@ -76,17 +84,16 @@ def test_demo_trains_evaluates_and_resumes(tmp_path, capsys, monkeypatch):
     printed = capsys.readouterr().out
     assert "holds a finished run" in printed and "on the validation split in" not in printed  # kept, not redone
     assert final.stat().st_mtime_ns == stamp
-    # recalibrate=true searches both checkpoints again (and stores the new choices)
+    # recalibrate=true searches again (and stores the new choice)
     demo([*args, "recalibrate=true"])
-    assert capsys.readouterr().out.count("on the validation split in") == 2
+    assert capsys.readouterr().out.count("on the validation split in") == 1
     # calibrate_carving=false: the levels alone (the carvings read the input camera); the tiny network
     # reads no camera either, so the scored predictions read only the image
     demo([*args, "recalibrate=true", "calibrate_carving=false"])
     capsys.readouterr()
     summary = json.loads((out / "iou.json").read_text())
-    for stage in ("joint", "coarse"):
-        record = summary["calibration_search"][stage]
-        assert record["carving"] is False and {c["carve"] for c in record["candidates"]} == {"none"}
+    record = summary["calibration_search"]["joint"]
+    assert record["carving"] is False and {c["carve"] for c in record["candidates"]} == {"none"}
     assert summary["reads"] == "nothing" and summary["baselines"]["retrieval_any_view"]["reads"] == "nothing"
     assert "retrieval (any view): nothing" in (out / "table.md").read_text()
     with pytest.raises(ValueError, match="recalibrate=true needs calibrate=true"):
@@ -152,3 +159,10 @@ def test_demo_mistakes_are_one_line(tmp_path, capsys, monkeypatch, override, mes
                               prog="svr.demo")
     assert message in line
     assert not (tmp_path / "demo").exists()
+
+
+@pytest.mark.parametrize("cores, device, expected", [(2, "cpu", 0), (4, "cpu", 2), (16, "cpu", 2), (2, "cuda", 2)])
+def test_the_evaluation_gets_voxelisation_workers_only_where_cores_are_spare(monkeypatch, cores, device, expected):
+    monkeypatch.setattr(scoring.os, "cpu_count", lambda: cores)
+    assert scoring._evaluation_workers(2, device) == expected
+    assert scoring._evaluation_workers(0, device) == 0
