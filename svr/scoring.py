@@ -141,7 +141,8 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
     # The coarse stage's checkpoint goes through the full model's calibration (not a search of its
     # own: 25 s of the demo's 12 minutes), so its row differs from the full model's by the later
     # stages' training alone.
-    coarse_model = dataclasses.replace(load_model(coarse_ckpt, device), calibration=model.calibration)
+    coarse_model = (model if coarse_ckpt == final_ckpt else
+                    dataclasses.replace(load_model(coarse_ckpt, device), calibration=model.calibration))
     kwargs = dict(progress=progress, protocol_workers=_evaluation_workers(protocol_workers, model.device))
     result = evaluate(model, dm, split, **kwargs)  # batches: the data's eval_batch_size
     extra = {}
@@ -157,10 +158,10 @@ def score_run(settings: TrainSettings, run: RunFolder, out_dir: Path, split: str
 
 def _evaluation_workers(protocol_workers: int, device) -> int:
     """The voxelisation workers the evaluation gets: ``protocol_workers`` where the network leaves
-    cores to them (it runs on a GPU, or the workers take at most half the cores), else none. On the 2-core machine the evaluation of the demo's test split took
-    39 s without workers and 48 s with two (the network's torch threads and the workers contend),
-    while the calibration search, which voxelises a score of candidates per prediction, took 23 s
-    with two and 39 s without."""
+    cores to them (it runs on a GPU, or the workers take at most half the cores), else none. On the
+    2-core machine the evaluation of the demo's test split took 39 s without workers and 48 s with
+    two (the network's torch threads and the workers contend), while the calibration search, which
+    voxelises a score of candidates per prediction, took 23 s with two and 39 s without."""
     cores = os.cpu_count() or 1
     on_gpu = torch.device(device).type == "cuda"
     return protocol_workers if on_gpu or 2 * protocol_workers <= cores else 0
