@@ -191,9 +191,9 @@ def hull_loss(sdf: torch.Tensor, half_side: float, alpha: torch.Tensor, view_ids
     to the surface; this term reaches every sample the views show as background. On the demo with
     the shape prior it raised the test IoU by 0.014 and 0.007 (two seeds) and the side views by
     0.010, and the calibration's level fell from 1.25 to 0.75 voxels (docs/training_recipe.md); the
-    demo uses it. A shape seen with a
-    silhouette lies inside that view's cone of rays, whose field (``silhouette_cone_sdf``) therefore bounds its
-    signed distance from below, ``sdf >= cone``, everywhere; the largest of the V views' cones
+    demo uses it. A shape seen with a silhouette lies inside that view's cone of rays, whose field
+    (``silhouette_cone_sdf``) therefore bounds its signed distance from below, ``sdf >= cone``,
+    everywhere; the largest of the V views' cones
     (their visual hull) is the tightest such bound. The loss is the mean over the grid samples of
     ``max(0, min(hull, margin) - tolerance - sdf)``: every sample the views show as background by
     more than the tolerance is pushed out of the shape at once; nothing is asked of the field
