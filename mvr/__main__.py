@@ -54,7 +54,9 @@ def stopped_message(settings: MVRSettings, signum: int) -> str:
     (with out_dir named: the default one is new each time)."""
     how = "Ctrl+C" if signum == signal.SIGINT else signal.Signals(signum).name
     out = shlex.quote(f"out_dir={os.path.abspath(settings.out_dir)}")
-    done, levels = finished_levels(settings.out_dir), len(settings.schedule.grid_resolutions())
+    # with optim.camera_rounds > 1 the levels are counted on across the rounds, as the checkpoints are
+    done = finished_levels(settings.out_dir)
+    levels = len(settings.schedule.grid_resolutions()) * settings.optim.camera_rounds
     if not done:
         return (f"stopped by {how} before level 1 of {levels} finished (nothing to resume); rerun the same "
                 f"command with {out} to start again")

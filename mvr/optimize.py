@@ -61,6 +61,10 @@ class OptimSettings:
             distance; ``CameraPoses``).
         camera_levels: the cameras are refined in the schedule's last ``camera_levels`` levels
             (earlier, the coarse shape's errors would be put into the cameras).
+        camera_rounds: with ``cameras``, how many times the whole schedule runs: each later round
+            starts again from the sphere with the cameras as the rounds before left them (every
+            level sees the corrected cameras, the last ``camera_levels`` refine them further), so
+            that the coarse levels no longer build the given cameras' errors into the shape.
     """
 
     lr: float = 0.05
@@ -89,6 +93,7 @@ class OptimSettings:
     cameras: bool = False
     camera_lr: float = 0.003
     camera_levels: int = 1
+    camera_rounds: int = 1
 
     def __post_init__(self) -> None:
         check_positive(self.lr, "lr")
@@ -101,6 +106,10 @@ class OptimSettings:
         check_int(self.image_levels, "image_levels", minimum=1)
         check_positive(self.camera_lr, "camera_lr")
         check_int(self.camera_levels, "camera_levels", minimum=1)
+        check_int(self.camera_rounds, "camera_rounds", minimum=1)
+        if self.camera_rounds > 1 and not self.cameras:
+            raise ValueError(f"camera_rounds={self.camera_rounds} needs cameras=true (later rounds use the refined "
+                             f"cameras)")
         if not 0 < self.lr_decay <= 1:
             raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
         betas = tuple(float(b) for b in self.betas)
@@ -273,6 +282,12 @@ class CameraPoses:
                 mean = torch.stack([p.detach() for p in group]).mean(0)
                 for p in group:
                     p.sub_(mean)
+
+    def restart(self, lr: float) -> None:
+        """Adam's step set back to ``lr`` (a later round of the schedule; its moments are kept)."""
+        check_positive(lr, "camera_lr")
+        for group in self.opt.param_groups:
+            group["lr"] = lr
 
     def decay(self, factor: float) -> None:
         """Multiplies Adam's step by ``factor`` (after each pass, as the grid's)."""

@@ -276,7 +276,8 @@ def reconstruct(
                      seed=seed)
     # Everything that can refuse the run (the resume point, the target) comes before the first
     # file is written or an old checkpoint removed.
-    state = _load_resume_point(plan.out, plan.fingerprint, len(plan.resolutions)) if resume else None
+    state = _load_resume_point(plan.out, plan.fingerprint,
+                               len(plan.resolutions) * optim.camera_rounds) if resume else None
     t0 = time.perf_counter()
     tgt = target if isinstance(target, Target) else make_target(
         plan.spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution,
@@ -415,30 +416,44 @@ def _prepare_out_dir(plan: _RunPlan, resume: bool) -> None:
                                                "backend": plan.backend, "fingerprint": plan.fingerprint})
 
 
+def _initial_grid(plan: _RunPlan) -> SDFGrid:
+    """The initial sphere at the first level's resolution."""
+    radius = plan.init_radius
+    return SDFGrid.from_function(lambda p: p.norm(dim=-1) - radius, plan.resolutions[0], plan.lo, plan.hi)
+
+
 def _starting_grid(plan: _RunPlan, state: Optional[_ResumePoint]) -> tuple[int, SDFGrid, list[LevelReport]]:
     """(first level to fit, its starting grid, the reports so far): the initial sphere at the first
     level's resolution, or the resume point's grid."""
     if state is None:
-        radius = plan.init_radius
-        return 0, SDFGrid.from_function(lambda p: p.norm(dim=-1) - radius, plan.resolutions[0], plan.lo, plan.hi), []
+        return 0, _initial_grid(plan), []
     grid = SDFGrid(state.values, state.bbox_min, state.bbox_max)
-    log.info("resuming after level %d of %d (%d^3) from %s", state.next_level, len(plan.resolutions),
+    log.info("resuming after level %d of %d (%d^3) from %s", state.next_level,
+             len(plan.resolutions) * plan.optim.camera_rounds,
              grid.resolution[0], state.checkpoint)
     return state.next_level, grid, state.reports
 
 
 def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], progress: bool) -> _Fit:
     """Fits the grid level by level, coarse to fine, from the start or the resume point; each
-    finished level is checkpointed and levels.json/csv rewritten."""
+    finished level is checkpointed and levels.json/csv rewritten. With ``optim.camera_rounds`` > 1
+    the schedule runs that many times (its stages numbered on across the rounds, as the
+    checkpoints are); each later round starts again from the sphere with the cameras as refined so
+    far."""
     cam_offsets = _camera_offsets(plan)
-    start_level, current, reports = _starting_grid(plan, state)
+    start, current, reports = _starting_grid(plan, state)
     poses = CameraPoses(26, plan.optim.camera_lr) if plan.optim.cameras else None
     if poses is not None and state is not None and state.poses is not None:
         poses.load(state.poses)
     seconds_images = 0.0
     cams_true = plan.rig.cameras(16)
-    for level in range(start_level, len(plan.resolutions)):
+    n_levels, rounds = len(plan.resolutions), plan.optim.camera_rounds
+    for stage in range(start, n_levels * rounds):
+        round_index, level = divmod(stage, n_levels)
         res = plan.resolutions[level]
+        if level == 0 and stage > 0:  # a later round: the sphere again, the cameras' step restored
+            current = _initial_grid(plan)
+            poses.restart(plan.optim.camera_lr)
         if current.resolution[0] != res:
             current = current.resample(res)
         size = plan.schedule.image_size_for(cams_true, plan.lo, plan.hi, res)
@@ -446,14 +461,17 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
         t0 = time.perf_counter()
         views = tgt.render(cams_true, plan.scene)
         seconds_images += time.perf_counter() - t0
-        refine = poses is not None and level >= len(plan.resolutions) - plan.optim.camera_levels
-        losses = _level_losses(plan, views, cams_true, cam_offsets, level, poses if refine else None)
-        desc = f"level {level + 1}/{len(plan.resolutions)} {res}^3 {size}px"
+        refine = poses is not None and level >= n_levels - plan.optim.camera_levels
+        losses = _level_losses(plan, views, cams_true, cam_offsets, level, poses if refine else None,
+                               corrected=poses if round_index > 0 and not refine else None)
+        desc = f"level {level + 1}/{n_levels} {res}^3 {size}px"
+        if rounds > 1:
+            desc = f"round {round_index + 1}/{rounds} {desc}"
         current, report = optimise_level(current, losses, level, plan.seed, progress, desc)
         reports.append(report)
         log.info("%s: %d passes, %d updates, loss %.3e -> %.3e, %.1fs (%s)", desc, report.passes, report.updates,
                  report.loss_start, report.loss_end, report.seconds, report.stop_reason)
-        _save_level(plan, level, current, reports, poses)
+        _save_level(plan, stage, current, reports, poses)
     believed = _believed_cameras(plan, cams_true, cam_offsets)
     if poses is not None:
         with torch.no_grad():
@@ -474,24 +492,29 @@ def _believed_cameras(plan: _RunPlan, cams_true: Cameras, cam_offsets: torch.Ten
 
 
 def _level_losses(plan: _RunPlan, views: TargetImages, cams_true: Cameras, cam_offsets: torch.Tensor,
-                  level: int, poses: Optional[CameraPoses] = None) -> ViewLosses:
+                  level: int, poses: Optional[CameraPoses] = None,
+                  corrected: Optional[CameraPoses] = None) -> ViewLosses:
     """One level's losses: the target views with the image noise of ``plan.noise`` (seeded per
     level), seen from the cameras the optimiser believes in (``_believed_cameras``), corrected by
-    ``poses`` where the cameras are refined."""
+    ``poses`` where the cameras are refined, or by ``corrected``'s corrections held fixed."""
     images, masks = views.images, views.masks.float()
     if plan.noise.image_std > 0:
         g = torch.Generator().manual_seed(int(plan.seed) * 7919 + level)
         images = images + plan.noise.image_std * torch.randn(images.shape, generator=g)
         masks = masks + plan.noise.image_std * torch.randn(masks.shape, generator=g)
-    return ViewLosses(_believed_cameras(plan, cams_true, cam_offsets), images, masks, plan.scene, plan.trace,
-                      plan.backend, plan.optim, poses)
+    cameras = _believed_cameras(plan, cams_true, cam_offsets)
+    if corrected is not None:
+        with torch.no_grad():
+            cameras = corrected.apply(cameras, torch.arange(cameras.batch_size)).detach()
+    return ViewLosses(cameras, images, masks, plan.scene, plan.trace, plan.backend, plan.optim, poses)
 
 
 def _save_level(plan: _RunPlan, level: int, grid: SDFGrid, reports: list[LevelReport],
                 poses: Optional[CameraPoses] = None) -> None:
     """The finished level's checkpoint (the point a rerun resumes from; with the cameras'
-    corrections where they are refined) and levels.json/csv (``level``: its 0-based index; the
-    checkpoint is numbered ``level + 1``, as the log counts)."""
+    corrections where they are refined) and levels.json/csv (``level``: its 0-based index, counted on
+    across the rounds of ``optim.camera_rounds``; the checkpoint is numbered ``level + 1``, as the log
+    counts)."""
     outputs.write_torch(_checkpoint_path(plan.out, level + 1), {
         "fingerprint": plan.fingerprint, "level": level + 1, "values": grid.values.detach().clone(),
         "bbox_min": grid.bbox_min, "bbox_max": grid.bbox_max,

@@ -225,3 +225,34 @@ def test_refined_cameras_are_checkpointed_and_resumed(tmp_path):
     with pytest.raises(ValueError, match="level_01.pt.*earlier version.*resume=false"):
         reconstruct("torus", tmp_path, **kwargs)
     assert (tmp_path / "metrics.json").stat().st_mtime_ns == stamp
+
+
+def test_camera_rounds_run_the_schedule_again_with_the_refined_cameras(tmp_path):
+    """optim.camera_rounds=2: the schedule runs twice (its stages checkpointed on, level_01 to
+    level_04), the second round starting from the sphere with the cameras the first refined; a run
+    resumed at the second round's start ends where the uninterrupted one did, bit for bit; rounds
+    without camera refinement are refused."""
+    kwargs = dict(target_settings=TargetSettings(extent=1.0, mesh_resolution=48),
+                  schedule=Schedule(resolutions=[8, 12]), noise=NoiseSettings(camera_std=0.05),
+                  optim=OptimSettings(max_passes=1, cameras=True, camera_rounds=2),
+                  evaluation=ScoringSettings(samples=500), progress=False)
+    first = reconstruct("torus", tmp_path, **kwargs)
+    assert [r.resolution for r in first.levels] == [8, 12, 8, 12]
+    assert first.metrics["levels"] == 4
+    names = sorted(p.name for p in (tmp_path / "checkpoints").glob("level_*.pt"))
+    assert names == ["level_01.pt", "level_02.pt", "level_03.pt", "level_04.pt"]
+    one = torch.load(tmp_path / "checkpoints" / "level_02.pt", weights_only=False)["poses"]
+    three = torch.load(tmp_path / "checkpoints" / "level_03.pt", weights_only=False)["poses"]
+    # the second round's first level sees the corrected cameras but does not move them
+    assert one["orbit"].abs().sum() > 0 and torch.equal(one["orbit"], three["orbit"])
+    assert torch.equal(one["aim"], three["aim"])
+    single = reconstruct("torus", tmp_path / "single", **{**kwargs, "optim": OptimSettings(max_passes=1, cameras=True)})
+    assert single.metrics["levels"] == 2
+    assert not np.array_equal(single.grid.values.numpy(), first.grid.values.numpy())
+    for k in (3, 4):
+        (tmp_path / "checkpoints" / f"level_{k:02d}.pt").unlink()
+    again = reconstruct("torus", tmp_path, **kwargs)
+    assert again.metrics["resumed_from_level"] == 2
+    np.testing.assert_array_equal(again.grid.values.numpy(), first.grid.values.numpy())
+    with pytest.raises(ValueError, match="camera_rounds=2 needs cameras=true"):
+        OptimSettings(camera_rounds=2)
