@@ -63,8 +63,9 @@ class OptimSettings:
             (earlier, the coarse shape's errors would be put into the cameras).
         camera_rounds: with ``cameras``, how many times the whole schedule runs: each later round
             starts again from the sphere with the cameras as the rounds before left them (every
-            level sees the corrected cameras, the last ``camera_levels`` refine them further), so
-            that the coarse levels no longer build the given cameras' errors into the shape.
+            level sees the corrected cameras, the last ``camera_levels`` refine them further, with
+            the step and the Adam state the round before left), so that the coarse levels no longer
+            build the given cameras' errors into the shape.
     """
 
     lr: float = 0.05
@@ -282,12 +283,6 @@ class CameraPoses:
                 mean = torch.stack([p.detach() for p in group]).mean(0)
                 for p in group:
                     p.sub_(mean)
-
-    def restart(self, lr: float) -> None:
-        """Adam's step set back to ``lr`` (a later round of the schedule; its moments are kept)."""
-        check_positive(lr, "camera_lr")
-        for group in self.opt.param_groups:
-            group["lr"] = lr
 
     def decay(self, factor: float) -> None:
         """Multiplies Adam's step by ``factor`` (after each pass, as the grid's)."""

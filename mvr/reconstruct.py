@@ -451,9 +451,8 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
     for stage in range(start, n_levels * rounds):
         round_index, level = divmod(stage, n_levels)
         res = plan.resolutions[level]
-        if level == 0 and stage > 0:  # a later round: the sphere again, the cameras' step restored
+        if level == 0 and stage > 0:  # a later round: the sphere again (the cameras keep their step)
             current = _initial_grid(plan)
-            poses.restart(plan.optim.camera_lr)
         if current.resolution[0] != res:
             current = current.resample(res)
         size = plan.schedule.image_size_for(cams_true, plan.lo, plan.hi, res)
