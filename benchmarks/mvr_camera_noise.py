@@ -6,10 +6,11 @@ shape (``optim.cameras=true``), and the same in two rounds of the schedule
 (``optim.camera_rounds=2``), the first two the baselines measured in the same run. The table
 (relative symmetric Hausdorff and Chamfer distances, the Hausdorff distance over the noiseless
 run's, the target's genus against the reconstruction's, and where the cameras put the target's
-vertices against the true cameras, in pixels, as given and after refinement) goes to ``--docs``/mvr_camera_noise.md (and .json). Every
-run keeps its folder under ``--out`` and is reused when finished (``--fresh`` redoes it). MESH_FOLDER
-as ``benchmarks.mvr_real_scans``'s (docs/mvr.md says how to get CGAL's scans; nothing is
-downloaded); a mesh with a few holes is closed as that benchmark does (64 boundary edges at most).
+vertices against the true cameras, in pixels, as given and after refinement) goes to
+``--docs``/mvr_camera_noise.md (and .json). Every run keeps its folder under ``--out`` and is
+reused when finished (``--fresh`` redoes it). MESH_FOLDER as ``benchmarks.mvr_real_scans``'s
+(docs/mvr.md says how to get CGAL's scans; nothing is downloaded); a mesh with a few holes is
+closed as that benchmark does (64 boundary edges at most).
 """
 from __future__ import annotations
 
@@ -87,7 +88,8 @@ def main() -> None:
     text = (f"# Multi-view reconstruction with camera noise, and camera refinement\n\n`{command}` "
             f"({(time.perf_counter() - start) / 60:.1f} min this time; finished runs are reused). Every run: "
             "`python -m mvr`'s defaults; camera noise is the paper's (`mvr/noise=camera`); refinement is "
-            "`optim.cameras=true`, in two rounds of the schedule `optim.camera_rounds=2` (docs/mvr.md). "
+            "`optim.cameras=true`, and in each mesh and seed's last run also two rounds of the schedule "
+            "(`optim.camera_rounds=2`; docs/mvr.md). "
             "Distances are relative to the target's bounding-box "
             "diagonal; the camera columns are the mean distance, in pixels of the last level's images, "
             "between where the optimiser's cameras and the true ones put the target's vertices; x noiseless: "
