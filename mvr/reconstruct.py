@@ -276,8 +276,7 @@ def reconstruct(
                      seed=seed)
     # Everything that can refuse the run (the resume point, the target) comes before the first
     # file is written or an old checkpoint removed.
-    state = _load_resume_point(plan.out, plan.fingerprint,
-                               len(plan.resolutions) * optim.camera_rounds) if resume else None
+    state = _load_resume_point(plan.out, plan.fingerprint, plan.stages) if resume else None
     t0 = time.perf_counter()
     tgt = target if isinstance(target, Target) else make_target(
         plan.spec, target_settings.extent, target_settings.normals, target_settings.mesh_resolution,
@@ -315,6 +314,11 @@ class _RunPlan:
     resolutions: list
     lo: torch.Tensor
     hi: torch.Tensor
+
+    @property
+    def stages(self) -> int:
+        """The levels fitted in all: the schedule's, once per round of ``optim.camera_rounds``."""
+        return len(self.resolutions) * self.optim.camera_rounds
 
 
 @dataclass(frozen=True)
@@ -428,8 +432,7 @@ def _starting_grid(plan: _RunPlan, state: Optional[_ResumePoint]) -> tuple[int, 
     if state is None:
         return 0, _initial_grid(plan), []
     grid = SDFGrid(state.values, state.bbox_min, state.bbox_max)
-    log.info("resuming after level %d of %d (%d^3) from %s", state.next_level,
-             len(plan.resolutions) * plan.optim.camera_rounds,
+    log.info("resuming after level %d of %d (%d^3) from %s", state.next_level, plan.stages,
              grid.resolution[0], state.checkpoint)
     return state.next_level, grid, state.reports
 
@@ -448,7 +451,7 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
     seconds_images = 0.0
     cams_true = plan.rig.cameras(16)
     n_levels, rounds = len(plan.resolutions), plan.optim.camera_rounds
-    for stage in range(start, n_levels * rounds):
+    for stage in range(start, plan.stages):
         round_index, level = divmod(stage, n_levels)
         res = plan.resolutions[level]
         if level == 0 and stage > 0:  # a later round: the sphere again (the cameras keep their step)
@@ -473,8 +476,7 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
         _save_level(plan, stage, current, reports, poses)
     believed = _believed_cameras(plan, cams_true, cam_offsets)
     if poses is not None:
-        with torch.no_grad():
-            believed = poses.apply(believed, torch.arange(believed.batch_size)).detach()
+        believed = _corrected_cameras(believed, poses)
     return _Fit(grid=current, reports=reports, cameras=cams_true, seconds_images=seconds_images, believed=believed)
 
 
@@ -490,6 +492,12 @@ def _believed_cameras(plan: _RunPlan, cams_true: Cameras, cam_offsets: torch.Ten
     return perturbed_cameras(cams_true, cam_offsets) if plan.noise.camera_std > 0 else cams_true
 
 
+def _corrected_cameras(cameras: Cameras, poses: CameraPoses) -> Cameras:
+    """All V ``cameras`` with ``poses``' corrections as they stand, detached (no gradient to them)."""
+    with torch.no_grad():
+        return poses.apply(cameras, torch.arange(cameras.batch_size)).detach()
+
+
 def _level_losses(plan: _RunPlan, views: TargetImages, cams_true: Cameras, cam_offsets: torch.Tensor,
                   level: int, poses: Optional[CameraPoses] = None,
                   corrected: Optional[CameraPoses] = None) -> ViewLosses:
@@ -503,8 +511,7 @@ def _level_losses(plan: _RunPlan, views: TargetImages, cams_true: Cameras, cam_o
         masks = masks + plan.noise.image_std * torch.randn(masks.shape, generator=g)
     cameras = _believed_cameras(plan, cams_true, cam_offsets)
     if corrected is not None:
-        with torch.no_grad():
-            cameras = corrected.apply(cameras, torch.arange(cameras.batch_size)).detach()
+        cameras = _corrected_cameras(cameras, corrected)
     return ViewLosses(cameras, images, masks, plan.scene, plan.trace, plan.backend, plan.optim, poses)
 
 
