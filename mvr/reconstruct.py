@@ -451,6 +451,7 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
     seconds_images = 0.0
     cams_true = plan.rig.cameras(16)
     n_levels, rounds = len(plan.resolutions), plan.optim.camera_rounds
+    rendered: dict[int, TargetImages] = {}  # each level's target views, rendered once for all rounds
     for stage in range(start, plan.stages):
         round_index, level = divmod(stage, n_levels)
         res = plan.resolutions[level]
@@ -460,9 +461,11 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
             current = current.resample(res)
         size = plan.schedule.image_size_for(cams_true, plan.lo, plan.hi, res)
         cams_true = plan.rig.cameras(size)
-        t0 = time.perf_counter()
-        views = tgt.render(cams_true, plan.scene)
-        seconds_images += time.perf_counter() - t0
+        if level not in rendered:
+            t0 = time.perf_counter()
+            rendered[level] = tgt.render(cams_true, plan.scene)
+            seconds_images += time.perf_counter() - t0
+        views = rendered[level]
         refine = poses is not None and level >= n_levels - plan.optim.camera_levels
         losses = _level_losses(plan, views, cams_true, cam_offsets, level, poses if refine else None,
                                corrected=poses if round_index > 0 and not refine else None)
