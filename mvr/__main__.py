@@ -21,7 +21,7 @@ import sys
 
 from hydra.core.hydra_config import HydraConfig
 
-from mvr.reconstruct import finished_levels, reconstruct
+from mvr.reconstruct import finished_levels, reconstruct, stage_count
 from mvr.runtime import configure_runtime
 from sdfcommon.tooling.stopping import sigterm_as_interrupt, stop_signal
 from mvr.settings import MVRSettings, reconstruct_kwargs
@@ -54,9 +54,7 @@ def stopped_message(settings: MVRSettings, signum: int) -> str:
     (with out_dir named: the default one is new each time)."""
     how = "Ctrl+C" if signum == signal.SIGINT else signal.Signals(signum).name
     out = shlex.quote(f"out_dir={os.path.abspath(settings.out_dir)}")
-    # with optim.camera_rounds > 1 the levels are counted on across the rounds, as the checkpoints are
-    done = finished_levels(settings.out_dir)
-    levels = len(settings.schedule.grid_resolutions()) * settings.optim.camera_rounds
+    done, levels = finished_levels(settings.out_dir), stage_count(settings.schedule, settings.optim)
     if not done:
         return (f"stopped by {how} before level 1 of {levels} finished (nothing to resume); rerun the same "
                 f"command with {out} to start again")

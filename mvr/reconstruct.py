@@ -155,6 +155,12 @@ def _level_checkpoints(out_dir: Path) -> list[Path]:
     return sorted(folder.glob("level_*.pt")) if folder.is_dir() else []
 
 
+def stage_count(schedule: Schedule, optim: OptimSettings) -> int:
+    """The levels a run fits in all, as its checkpoints number them: the schedule's, once per round
+    of ``optim.camera_rounds``."""
+    return len(schedule.grid_resolutions()) * optim.camera_rounds
+
+
 def finished_levels(out_dir: Union[str, Path]) -> int:
     """The number of the last level checkpointed in ``out_dir`` (its ``checkpoints/level_NN.pt``),
     the level a rerun resumes after; 0 where there is none."""
@@ -317,8 +323,8 @@ class _RunPlan:
 
     @property
     def stages(self) -> int:
-        """The levels fitted in all: the schedule's, once per round of ``optim.camera_rounds``."""
-        return len(self.resolutions) * self.optim.camera_rounds
+        """The levels fitted in all (``stage_count``)."""
+        return stage_count(self.schedule, self.optim)
 
 
 @dataclass(frozen=True)
