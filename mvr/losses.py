@@ -41,11 +41,23 @@ def view_image_losses(rendered: torch.Tensor, target: torch.Tensor, kind: str = 
     return total / levels
 
 
-def view_silhouette_losses(silhouette: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+def view_silhouette_losses(silhouette: torch.Tensor, target: torch.Tensor, tolerance: float = 0.0) -> torch.Tensor:
     """Mean squared difference, per view, between soft silhouettes (V, H, W) in [0, 1] and target
-    coverage (V, H, W) (a float mask, possibly noisy). Returns (V,). Not in the paper: it gives the
-    grid gradients where rays miss the surface."""
+    coverage (V, H, W) (a float mask, possibly noisy), less a dead zone: a pixel within ``tolerance``
+    of its target costs nothing (0: the plain squared difference). Returns (V,). Not in the paper:
+    it gives the grid gradients where rays miss the surface.
+
+    With a tolerance a ray that hits a thin part well enough (coverage ``1 - tolerance``) is no
+    longer pulled further in: the plain difference asks for full coverage, which a part a pixel
+    wide reaches only by growing (docs/mvr_method.md, "A silhouette term with a dead zone").
+    """
     if silhouette.shape != target.shape or silhouette.ndim != 3:
         raise ValueError(f"silhouette {tuple(silhouette.shape)} and target {tuple(target.shape)} must both be "
                          f"(V, H, W)")
-    return ((silhouette - target.to(silhouette.dtype)) ** 2).mean(dim=(1, 2))
+    if not 0 <= tolerance < 0.5:
+        raise ValueError(f"silhouette tolerance must be in [0, 0.5), got {tolerance!r}")
+    target = target.to(silhouette.dtype)
+    diff = silhouette - target
+    if tolerance > 0:
+        diff = diff - diff.clamp(-tolerance, tolerance)
+    return (diff ** 2).mean(dim=(1, 2))

@@ -37,6 +37,10 @@ class OptimSettings:
         betas, eps: Adam's other parameters.
         image_weight, silhouette_weight, eikonal_weight, laplacian_weight: weights of the energy's
             terms (see mvr.losses); the silhouette and Laplacian terms are off in the paper.
+        silhouette_tolerance: the silhouette term's dead zone: a pixel whose soft coverage is within
+            this of its target costs nothing (0: the plain squared difference; see
+            ``view_silhouette_losses``). 0.27 is the coverage a ray gets one soft-silhouette width
+            (``scene.silhouette_sigma`` pixels) from the surface: ``sigmoid(-1)``.
         image_loss: "l1" (the authors' code's) or "l2" (the paper's) image loss.
         image_levels: levels of the image pyramid the image loss averages over (1: the images alone).
         hard_view_updates: updates at most for a view above the mean loss (paper: 20).
@@ -74,6 +78,7 @@ class OptimSettings:
     eps: float = 1e-5
     image_weight: float = 1.0
     silhouette_weight: float = 1.0
+    silhouette_tolerance: float = 0.27
     eikonal_weight: float = 0.01
     laplacian_weight: float = 0.01
     image_loss: str = "l1"
@@ -102,6 +107,7 @@ class OptimSettings:
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be true or false, got {getattr(self, name)!r}")
         check_float(self.carve_tolerance, "carve_tolerance", minimum=0)
+        check_float(self.silhouette_tolerance, "silhouette_tolerance", minimum=0, maximum=0.45)
         if self.image_loss not in IMAGE_LOSSES:
             raise ValueError(f"image_loss must be one of {', '.join(IMAGE_LOSSES)}, got {self.image_loss!r}")
         check_int(self.image_levels, "image_levels", minimum=1)
@@ -349,7 +355,7 @@ class ViewLosses:
         s = self.settings
         img = view_image_losses(out.image, self.images[views], s.image_loss, s.image_levels)
         if s.silhouette_weight > 0:
-            sil = view_silhouette_losses(out.silhouette, self.masks[views])
+            sil = view_silhouette_losses(out.silhouette, self.masks[views], s.silhouette_tolerance)
         else:
             sil = torch.zeros_like(img)
         return s.image_weight * img + s.silhouette_weight * sil, img, sil

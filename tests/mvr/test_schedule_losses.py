@@ -58,6 +58,22 @@ def test_losses():
         view_silhouette_losses(a, b)
 
 
+def test_silhouette_dead_zone_by_hand():
+    """With a tolerance, coverage within it of the target costs nothing and beyond it only the
+    excess counts, on either side; a thin part covered 0.8 is no longer pulled towards 1."""
+    target = torch.tensor([[[1.0, 1.0, 0.0, 0.0]]])
+    sil = torch.tensor([[[0.8, 0.5, 0.1, 0.6]]], requires_grad=True)
+    plain = view_silhouette_losses(sil, target)
+    assert torch.allclose(plain, torch.tensor([(0.04 + 0.25 + 0.01 + 0.36) / 4]))
+    zone = view_silhouette_losses(sil, target, tolerance=0.25)
+    assert torch.allclose(zone, torch.tensor([(0.0 + 0.0625 + 0.0 + 0.1225) / 4]))
+    zone.sum().backward()
+    assert torch.allclose(sil.grad, torch.tensor([[[0.0, -0.125, 0.0, 0.175]]]))
+    assert torch.equal(view_silhouette_losses(sil, target, tolerance=0.0), plain)
+    with pytest.raises(ValueError, match="tolerance"):
+        view_silhouette_losses(sil, target, tolerance=0.5)
+
+
 def test_l1_and_pyramid_image_losses_by_hand():
     """L1 against L2 on a uniform error; a pyramid level averages 2x2 blocks first: a checkerboard
     of +-1 errors costs 1 at full size and 0 once averaged, so two levels give 1/2, three 1/3."""
