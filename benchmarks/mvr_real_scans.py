@@ -10,9 +10,10 @@ repaired copy goes to ``OUT/meshes/``), and otherwise left out with the reason i
 run writes its usual folder ``OUT/<config>/<mesh>/`` (a finished one, with metrics.json, is reused
 unless ``--fresh``) plus ``errors.png``: the target coloured by its distance to the reconstruction
 and the reconstruction by its distance to the target (red: at least ``--error-scale`` of the
-bounding-box diagonal). The table (markdown, CSV, JSON) goes to OUT, and a copy of the markdown
-with the command and the machine to ``DOCS/mvr_real_scans.md`` (with the default configuration's
-error pictures) unless ``--docs ''``.
+bounding-box diagonal), and ``grid_truth.json``: the target's own signed distance sampled on the
+run's final grid, meshed and scored alike (what the resolution alone loses). The table (markdown,
+CSV, JSON) goes to OUT, and a copy of the markdown with the command and the machine to
+``DOCS/mvr_real_scans.md`` (with the default configuration's error pictures) unless ``--docs ''``.
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ CONFIGS = {"default": (), "paper": ("mvr/preset=paper",), "visibility": ("scene.
 # Paper section 5, symmetric Hausdorff relative to the bounding box (SPEC.md section 2).
 PAPER = {"torus": 0.015637, "bunny": 0.026654, "dragon": 0.074723}
 COLUMNS = ("mesh", "config", "hausdorff_rel", "hausdorff99_rel", "chamfer_rel", "seconds", "pass_seconds",
-           "watertight", "genus", "target_genus", "faces", "note")
+           "watertight", "genus", "target_genus", "faces", "truth_hausdorff_rel", "truth_genus", "note")
 ERROR_VIEWS = (0, 2, 4, 7, 18, 21)  # rig views shown in errors.png: four faces and two corners
 
 
@@ -145,6 +146,46 @@ def write_error_picture(run_dir: Path, overrides: Sequence[str], error_scale: fl
     return outputs.write_png(run_dir / "errors.png", picture)
 
 
+def grid_truth(run_dir: Path, samples: int = 50_000, seed: int = 0) -> dict:
+    """The target's own signed distance sampled on the run's final grid (its resolution and box,
+    ``grid.npz``; exact within three samples of the surface), meshed and scored as the run's grid is:
+    what sampling at that resolution alone loses. A reference, not a bound: sampling drops a part
+    thinner than a sample spacing and bridges a slot narrower than one, where a fit may keep the part
+    thickened or open the slot widened. Cached in ``run_dir/grid_truth.json``.
+
+    Returns:
+        {"hausdorff_rel", "chamfer_rel", "genus", "resolution"}.
+    """
+    cache = run_dir / "grid_truth.json"
+    if cache.is_file():
+        return json.loads(cache.read_text())
+    from sdfcommon.numerics.meshing import sdf_to_mesh
+    from mvr.metrics import surface_distances
+
+    grid = np.load(run_dir / "grid.npz")
+    values, lo, hi = grid["values"], grid["bbox_min"].astype(np.float64), grid["bbox_max"].astype(np.float64)
+    target = trimesh.load(run_dir / "target.ply", force="mesh", process=False)
+    axes = [np.linspace(lo[i], hi[i], values.shape[i]) for i in range(3)]
+    points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    # Marching cubes reads the values only in cells the surface crosses, whose corners lie within a
+    # cell's diagonal of it: exact distances there, the distance to dense surface samples elsewhere.
+    from scipy.spatial import cKDTree
+
+    dense, _ = trimesh.sample.sample_surface(target, 200_000, seed=seed)
+    distance, _ = cKDTree(np.vstack([dense, target.vertices])).query(points)
+    near = distance < 3.0 * float(np.max((hi - lo) / (np.array(values.shape) - 1)))
+    distance[near] = one_sided_distances(points[near], target)
+    inside = target.contains(points)
+    sdf = np.where(inside, -distance, distance).reshape(values.shape).astype(np.float32)
+    mesh = sdf_to_mesh(sdf, lo, hi)
+    dist = surface_distances(mesh, target, samples, seed)
+    euler = mesh.euler_number if len(mesh.faces) else None
+    result = {"hausdorff_rel": dist.hausdorff_rel, "chamfer_rel": dist.chamfer_rel,
+              "genus": None if euler is None else (2 - euler) / 2, "resolution": int(values.shape[0])}
+    outputs.write_json(cache, result)
+    return result
+
+
 def finest_pass_seconds(levels: Sequence[dict]) -> Optional[float]:
     """Mean seconds of a pass at the finest level, from a run's levels.json (its per-pass history)."""
     if not levels or not levels[-1].get("history"):
@@ -153,8 +194,9 @@ def finest_pass_seconds(levels: Sequence[dict]) -> Optional[float]:
 
 
 def result_row(mesh: PreparedMesh, config: str, metrics: Optional[dict], hausdorff99: Optional[float],
-               pass_seconds: Optional[float] = None) -> dict:
-    """One table row (the COLUMNS) from a run's metrics (None: the mesh was left out)."""
+               pass_seconds: Optional[float] = None, truth: Optional[dict] = None) -> dict:
+    """One table row (the COLUMNS) from a run's metrics (None: the mesh was left out) and its grid's
+    sampled truth (``grid_truth``; None: not computed)."""
     if metrics is None or metrics.get("hausdorff_rel") is None:
         note = mesh.note if metrics is None else (metrics.get("error") or "failed")
         return {"mesh": mesh.name, "config": config, "note": note}
@@ -162,7 +204,9 @@ def result_row(mesh: PreparedMesh, config: str, metrics: Optional[dict], hausdor
             "hausdorff99_rel": hausdorff99, "chamfer_rel": metrics["chamfer_rel"], "seconds": metrics["seconds"],
             "pass_seconds": pass_seconds,
             "watertight": metrics["mesh_watertight"], "genus": metrics["mesh_genus"],
-            "target_genus": metrics["target_genus"], "faces": metrics["mesh_faces"], "note": mesh.note}
+            "target_genus": metrics["target_genus"], "faces": metrics["mesh_faces"],
+            "truth_hausdorff_rel": None if truth is None else truth["hausdorff_rel"],
+            "truth_genus": None if truth is None else truth["genus"], "note": mesh.note}
 
 
 def _cell(row: dict, key: str) -> str:
@@ -176,7 +220,7 @@ def _cell(row: dict, key: str) -> str:
             return f"{value:.0f}"
         if key == "pass_seconds":
             return f"{value:.1f}"
-        if key in ("genus", "target_genus"):
+        if key in ("genus", "target_genus", "truth_genus"):
             return f"{value:g}"
         return f"{value:.4f}" if key != "chamfer_rel" else f"{value:.5f}"
     return str(value)
@@ -184,14 +228,15 @@ def _cell(row: dict, key: str) -> str:
 
 def markdown_table(rows: Sequence[dict], configs: Sequence[str]) -> str:
     """One line per mesh: for each configuration its relative Hausdorff (and 99th percentile),
-    relative Chamfer, seconds, watertightness and genus (ours / target), then the paper's value and
-    the note."""
+    relative Chamfer, seconds, watertightness and genus (ours / target) and the Hausdorff distance of
+    the truth on its grid, then the paper's value and the note."""
     by_mesh: dict[str, dict[str, dict]] = {}
     for row in rows:
         by_mesh.setdefault(row["mesh"], {})[row["config"]] = row
     head = ["mesh"]
     for c in configs:
-        head += [f"{c}: H", f"{c}: H99", f"{c}: C", f"{c}: s", f"{c}: s/pass", f"{c}: watertight, genus"]
+        head += [f"{c}: H", f"{c}: H99", f"{c}: C", f"{c}: s", f"{c}: s/pass", f"{c}: watertight, genus",
+                 f"{c}: truth on grid: H"]
     head += ["paper H", "note"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for mesh, runs in by_mesh.items():
@@ -203,7 +248,7 @@ def markdown_table(rows: Sequence[dict], configs: Sequence[str]) -> str:
             topo = (f"{_cell(r, 'watertight')}, {_cell(r, 'genus')} / {_cell(r, 'target_genus')}"
                     if r.get("hausdorff_rel") is not None else "")
             cells += [_cell(r, "hausdorff_rel"), _cell(r, "hausdorff99_rel"), _cell(r, "chamfer_rel"),
-                      _cell(r, "seconds"), _cell(r, "pass_seconds"), topo]
+                      _cell(r, "seconds"), _cell(r, "pass_seconds"), topo, _cell(r, "truth_hausdorff_rel")]
         paper = paper_value(mesh)
         cells += ["" if paper is None else f"{paper:g}", note]
         lines.append("| " + " | ".join(cells) + " |")
@@ -221,10 +266,13 @@ def summary(rows: Sequence[dict], configs: Sequence[str], goal: float) -> str:
         worst = max(done, key=lambda r: r["hausdorff_rel"])
         slowest = max(done, key=lambda r: r["seconds"])
         met = sum(r["hausdorff_rel"] <= goal for r in done)
+        truths = [r["truth_hausdorff_rel"] for r in done if r.get("truth_hausdorff_rel") is not None]
+        truth = (f"; the truth on the same grids: {sum(t <= goal for t in truths)} of {len(truths)} at most "
+                 f"{goal:g}, worst {max(truths):.4f}" if truths else "")
         out.append(f"- `{c}`: worst relative Hausdorff {worst['hausdorff_rel']:.4f} ({worst['mesh']}); "
                    f"{met} of {len(done)} at most {goal:g}; median Chamfer "
                    f"{float(np.median([r['chamfer_rel'] for r in done])):.5f}; longest run "
-                   f"{slowest['seconds']:.0f} s ({slowest['mesh']}).")
+                   f"{slowest['seconds']:.0f} s ({slowest['mesh']}){truth}.")
     return "\n".join(out)
 
 
@@ -244,12 +292,13 @@ def run_one(mesh: PreparedMesh, config: str, out: Path, fresh: bool, error_scale
         reconstruct_with_overrides(mesh.target, run_dir, overrides)
         print(f"  load average {load_before:.1f} -> {os.getloadavg()[0]:.1f}", flush=True)
     metrics = json.loads(metrics_file.read_text())
-    h99 = None
+    h99 = truth = None
     if metrics.get("hausdorff_rel") is not None:
         write_error_picture(run_dir, overrides, error_scale)
         h99 = percentile_distance_rel(run_dir / "mesh.ply", run_dir / "target.ply")
+        truth = grid_truth(run_dir)
     levels = json.loads((run_dir / "levels.json").read_text())
-    return result_row(mesh, config, metrics, h99, finest_pass_seconds(levels))
+    return result_row(mesh, config, metrics, h99, finest_pass_seconds(levels), truth)
 
 
 def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: Optional[Path], command: str,
@@ -272,7 +321,10 @@ def write_tables(rows: Sequence[dict], configs: Sequence[str], out: Path, docs: 
         "Chamfer distance, all relative to the target's bounding-box diagonal (50k samples per surface; "
         "H99 from 20k); s: seconds of the whole run (target, images, optimisation, evaluation); s/pass: "
         "mean seconds of a pass (26 views) at the finest level; "
-        "watertight, genus: the reconstruction's mesh, then the target's genus. Configurations: "
+        "watertight, genus: the reconstruction's mesh, then the target's genus; truth on grid: H: the "
+        "target's own signed distance sampled on the run's final grid and meshed as the run's is (what "
+        "sampling at that resolution loses; not a bound: a fit can keep a part thinner than a sample "
+        "spacing, thickened, that sampling drops). Configurations: "
         + "; ".join(f"`{c}` = `python -m mvr {' '.join(CONFIGS[c]) or '(defaults)'}`" for c in configs) + ".",
         "",
         table,

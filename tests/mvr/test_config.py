@@ -1,6 +1,8 @@
 """The hydra config composes and instantiates into the plain objects reconstruct() takes."""
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 from hydra.errors import ConfigCompositionException
@@ -83,11 +85,15 @@ def test_paper_preset_restores_the_papers_settings():
 
 
 def test_fine_preset_is_the_defaults_with_a_finer_last_level():
+    """... and the plain squared silhouette difference it was measured with (no dead zone)."""
     fine = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "mvr/preset=fine"]))
     default = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused"]))
     assert fine["schedule"].grid_resolutions() == [8, 16, 32, 48, 96]
     assert default["schedule"].grid_resolutions() == [8, 16, 32, 64]
-    assert {k: v for k, v in fine.items() if k != "schedule"} == {k: v for k, v in default.items() if k != "schedule"}
+    assert default["optim"].silhouette_tolerance == 0.27 and fine["optim"].silhouette_tolerance == 0.0
+    assert fine["optim"] == dataclasses.replace(default["optim"], silhouette_tolerance=0.0)
+    rest = ("schedule", "optim")
+    assert {k: v for k, v in fine.items() if k not in rest} == {k: v for k, v in default.items() if k not in rest}
 
 
 def test_threads_default_to_every_core():

@@ -90,22 +90,42 @@ def test_table_and_summary():
               module.PreparedMesh("lid", None, "left out: 40 boundary edges")]
     metrics = {"hausdorff_rel": 0.031, "chamfer_rel": 0.0021, "seconds": 95.2, "mesh_watertight": True,
                "mesh_genus": 1.0, "target_genus": 1.0, "mesh_faces": 1000}
-    rows = [module.result_row(meshes[0], "default", metrics, 0.012, 2.46),
+    rows = [module.result_row(meshes[0], "default", metrics, 0.012, 2.46, {"hausdorff_rel": 0.0123, "genus": 1.0}),
             module.result_row(meshes[0], "paper", dict(metrics, hausdorff_rel=0.05, seconds=80.0), 0.02),
             module.result_row(meshes[1], "default", None, None)]
     table = module.markdown_table(rows, ["default", "paper"])
     lines = table.splitlines()
-    assert lines[0].count("|") == 1 + 1 + 6 * 2 + 2  # mesh, 6 columns per configuration, paper, note
+    assert lines[0].count("|") == 1 + 1 + 7 * 2 + 2  # mesh, 7 columns per configuration, paper, note
     dragon = next(line for line in lines if line.startswith("| ChineseDragon |"))
     assert "0.0310" in dragon and "0.0500" in dragon and "0.074723" in dragon and "yes, 1 / 1" in dragon
-    assert "| 95 | 2.5 |" in dragon
+    assert "| 95 | 2.5 |" in dragon and "| yes, 1 / 1 | 0.0123 |" in dragon
     assert "left out: 40 boundary edges" in table
     text = module.summary(rows, ["default", "paper"], goal=0.04)
     assert "`default`: worst relative Hausdorff 0.0310 (ChineseDragon); 1 of 1 at most 0.04" in text
+    assert "the truth on the same grids: 1 of 1 at most 0.04, worst 0.0123" in text
     assert "`paper`: worst relative Hausdorff 0.0500 (ChineseDragon); 0 of 1" in text
     assert module.paper_value("bunny00") == 0.026654 and module.paper_value("cow") is None
     levels = [{"history": [{"seconds": 1.0}]}, {"history": [{"seconds": 2.0}, {"seconds": 4.0}]}]
     assert module.finest_pass_seconds(levels) == 3.0 and module.finest_pass_seconds([]) is None
+
+
+def test_grid_truth_bridges_a_gap_narrower_than_the_grid(tmp_path):
+    """Two slabs 0.1 apart: on a grid whose samples straddle the gap the truth itself bridges it
+    (one part, its inner faces far from the mesh); on a grid fine enough the gap and both parts stay."""
+    slabs = trimesh.util.concatenate([trimesh.creation.box((0.6, 0.6, 0.3)).apply_translation((0, 0, z))
+                                      for z in (-0.2, 0.2)])
+    sampled = {}
+    for n in (10, 32):
+        run = tmp_path / f"run{n}"
+        run.mkdir()
+        slabs.export(run / "target.ply")
+        np.savez(run / "grid.npz", values=np.zeros((n, n, n), np.float32),
+                 bbox_min=np.full(3, -1.0, np.float32), bbox_max=np.full(3, 1.0, np.float32))
+        sampled[n] = module.grid_truth(run)
+        assert (run / "grid_truth.json").is_file() and sampled[n]["resolution"] == n
+    diagonal = float(np.linalg.norm(slabs.extents))
+    assert sampled[32]["hausdorff_rel"] < 0.06 / diagonal and sampled[32]["genus"] == -1  # two parts
+    assert sampled[10]["hausdorff_rel"] > 0.15 / diagonal and sampled[10]["genus"] == 0  # bridged
 
 
 def test_toy_run_writes_table_pictures_and_reuses_runs(tmp_path, monkeypatch):
@@ -125,6 +145,7 @@ def test_toy_run_writes_table_pictures_and_reuses_runs(tmp_path, monkeypatch):
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert {(r["mesh"], r["config"]) for r in rows} == {("ball", "default"), ("ball", "paper")}
     assert all(r["hausdorff_rel"] > 0 and r["seconds"] > 0 for r in rows)
+    assert all(0 < r["truth_hausdorff_rel"] < r["hausdorff_rel"] for r in rows)
     assert (out / "paper" / "ball" / "errors.png").stat().st_size > 1000
     text = (docs / "mvr_real_scans.md").read_text()
     assert "| ball |" in text and "mvr_errors_ball.png" in text and (docs / "mvr_errors_ball.png").is_file()
