@@ -159,6 +159,7 @@ def grid_truth(run_dir: Path, samples: int = 50_000, seed: int = 0) -> dict:
     cache = run_dir / "grid_truth.json"
     if cache.is_file():
         return json.loads(cache.read_text())
+    from scipy.spatial import cKDTree  # heavy: only this column needs these
     from sdfcommon.numerics.meshing import sdf_to_mesh
     from mvr.metrics import surface_distances
 
@@ -169,8 +170,6 @@ def grid_truth(run_dir: Path, samples: int = 50_000, seed: int = 0) -> dict:
     points = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     # Marching cubes reads the values only in cells the surface crosses, whose corners lie within a
     # cell's diagonal of it: exact distances there, the distance to dense surface samples elsewhere.
-    from scipy.spatial import cKDTree
-
     dense, _ = trimesh.sample.sample_surface(target, 200_000, seed=seed)
     distance, _ = cKDTree(np.vstack([dense, target.vertices])).query(points)
     near = distance < 3.0 * float(np.max((hi - lo) / (np.array(values.shape) - 1)))
