@@ -19,6 +19,7 @@ from tqdm.auto import tqdm
 from renderer import Cameras, Scene, SDFGrid, TraceSettings, render, rotation_matrices
 
 from sdfcommon.numerics.hull import signed_pixel_distance, visual_hull
+from sdfcommon.numerics.redistance import redistance
 from sdfcommon.numerics.regularisers import band_regularisers, box_face_eikonal_sum
 from sdfcommon.tooling.checks import check_float, check_int, check_positive
 
@@ -59,6 +60,12 @@ class OptimSettings:
             ``carve_tolerance`` voxels (``ViewLosses.carve``): whatever the fit grew outside the
             cones of the views' silhouettes goes (not in the paper; docs/mvr_method.md).
         carve_tolerance: how far (voxels of the level) the shape may reach outside the hull.
+        redistance: after each pass (after carving and filling), replace the values away from the
+            surface by the distance to it, the surface kept (``sdfcommon.numerics.redistance``;
+            Vicini et al. 2022 re-distance after every step; not in the paper).
+        regulariser_band: the regularisers at the vertices within this many voxels of the surface
+            only (None: every vertex, the box's faces too); needs ``redistance``, which keeps the
+            values beyond it a distance, and costs a fraction at fine levels.
         cameras: refine each camera's pose (an orbit about the origin, a distance and an aim, ``CameraPoses``) with
             the shape, by the render's camera gradient (not in the paper; for inexact cameras).
         camera_lr: Adam's step for the poses (radians for the orbit and the aim, the log of the
@@ -96,6 +103,8 @@ class OptimSettings:
     fill_cavities: bool = True
     carve: bool = True
     carve_tolerance: float = 1.0
+    redistance: bool = False
+    regulariser_band: Optional[float] = None
     cameras: bool = False
     camera_lr: float = 0.003
     camera_levels: int = 1
@@ -103,10 +112,15 @@ class OptimSettings:
 
     def __post_init__(self) -> None:
         check_positive(self.lr, "lr")
-        for name in ("cameras", "carve", "fill_cavities", "shuffle_views"):
+        for name in ("cameras", "carve", "fill_cavities", "redistance", "shuffle_views"):
             if not isinstance(getattr(self, name), bool):
                 raise TypeError(f"{name} must be true or false, got {getattr(self, name)!r}")
         check_float(self.carve_tolerance, "carve_tolerance", minimum=0)
+        if self.regulariser_band is not None:
+            check_positive(self.regulariser_band, "regulariser_band")
+            if not self.redistance:
+                raise ValueError(f"regulariser_band={self.regulariser_band} needs redistance=true (beyond the band "
+                                 f"nothing else keeps the values a distance)")
         check_float(self.silhouette_tolerance, "silhouette_tolerance", minimum=0, maximum=0.45)
         if self.image_loss not in IMAGE_LOSSES:
             raise ValueError(f"image_loss must be one of {', '.join(IMAGE_LOSSES)}, got {self.image_loss!r}")
@@ -386,11 +400,20 @@ class ViewLosses:
         eikonal term also on the box faces (one-sided differences across them,
         ``box_face_eikonal_sum``) and a mean over all the vertices. Without the faces their values
         drift and a shape near them grows pits: the rounded box went from 0.0039 to 0.0344 relative
-        Hausdorff with genus 3 when they were dropped (docs/mvr.md)."""
+        Hausdorff with genus 3 when they were dropped (docs/mvr.md). With
+        ``settings.regulariser_band`` only the interior vertices within that many voxels of the
+        surface count (their sum over every vertex's count, so a vertex weighs the same): the
+        re-distancing (``settings.redistance``) keeps the rest a distance."""
         s = self.settings
         h = cube_voxel_size(grid)
-        eik, lap = band_regularisers(grid.values, h, mu=None)
         b, nx, ny, nz = grid.values.shape
+        if s.regulariser_band is not None:
+            # the vertices within the band only, each weighted as in the sum over every vertex
+            eik, lap = band_regularisers(grid.values, h, mu=s.regulariser_band)
+            inner = grid.values.detach()[:, 1:-1, 1:-1, 1:-1]
+            share = float((inner.abs() <= s.regulariser_band * h).sum()) / (b * nx * ny * nz)
+            return s.eikonal_weight * eik * share + s.laplacian_weight * lap * share, eik * share, lap * share
+        eik, lap = band_regularisers(grid.values, h, mu=None)
         eik = (eik * (b * (nx - 2) * (ny - 2) * (nz - 2)) + box_face_eikonal_sum(grid.values, h)) / (b * nx * ny * nz)
         return s.eikonal_weight * eik + s.laplacian_weight * lap, eik, lap
 
@@ -550,8 +573,9 @@ def _update_view(fit: _Fitting, losses: ViewLosses, view: int, hard: bool, mean:
     for k in range(budget):
         g = fit.grid()
         data, _, _ = losses.data_loss(g, torch.tensor([view]))
-        reg, _, _ = losses.regulariser(g)
-        total = data[0] + reg
+        total = data[0]
+        if settings.eikonal_weight > 0 or settings.laplacian_weight > 0:
+            total = total + losses.regulariser(g)[0]
         value = float(total.detach())
         if k > 0 and value > previous:
             break  # the last update raised this view's loss: move on
@@ -568,9 +592,9 @@ def _update_view(fit: _Fitting, losses: ViewLosses, view: int, hard: bool, mean:
 
 
 def _end_pass(fit: _Fitting, losses: ViewLosses, before: torch.Tensor) -> float:
-    """After a pass: the learning rate decays, the grid is carved by the visual hull and cavities
-    are filled (where the settings say); returns the largest change of a value since ``before`` (the
-    values at the pass's start), in voxels."""
+    """After a pass: the learning rate decays, the grid is carved by the visual hull, cavities
+    are filled and the grid re-distanced (where the settings say); returns the largest change of a
+    value since ``before`` (the values at the pass's start), in voxels, before the re-distancing."""
     settings = losses.settings
     for group in fit.opt.param_groups:
         group["lr"] *= settings.lr_decay
@@ -580,7 +604,11 @@ def _end_pass(fit: _Fitting, losses: ViewLosses, before: torch.Tensor) -> float:
     if settings.fill_cavities:
         with torch.no_grad():
             fit.values.copy_(fill_cavities(fit.values[0]).unsqueeze(0))
-    return float((fit.values.detach() - before).abs().max()) / fit.voxel
+    step = float((fit.values.detach() - before).abs().max()) / fit.voxel
+    if settings.redistance:  # after the step is measured: it changes values, not the surface
+        with torch.no_grad():
+            fit.values.copy_(redistance(fit.values[0], fit.voxel).unsqueeze(0))
+    return step
 
 
 def _convergence(settings: OptimSettings, pass_index: int, mean: float, step: float, stalls: int) -> Optional[str]:

@@ -167,3 +167,31 @@ def test_carving_removes_what_lies_outside_the_visual_hull():
         settings = OptimSettings(max_passes=1, lr=1e-4, carve=carve, **FEW)
         fitted, _ = optimise_level(sphere_and_blob, losses(settings), progress=False)
         assert bool((fitted.values[0][blob] < 0).any()) == blob_left
+
+
+def test_redistancing_after_a_pass_keeps_the_surface_and_mends_the_far_values(problem):
+    """With ``redistance`` a pass leaves the values away from the surface at their distance to it
+    (here a grid three times too steep beyond a sphere, which a pass barely moves), the surface where
+    the pass put it; ``regulariser_band`` needs it and weighs each vertex as the full sum does."""
+    from sdfcommon.numerics.redistance import interface_mask
+
+    grid, losses = problem
+    steep = SDFGrid.from_function(lambda p: 3 * (p.norm(dim=-1) - 0.5), 16, -1.0, 1.0)
+    out = {}
+    for on in (False, True):
+        settings = OptimSettings(max_passes=1, lr=1e-4, redistance=on, **FEW)
+        out[on], _ = optimise_level(steep, losses(settings), progress=False)
+    plain, mended = out[False].values[0], out[True].values[0]
+    interface = torch.from_numpy(interface_mask((mended < 0).numpy()))
+    assert torch.equal(mended < 0, plain < 0)
+    assert torch.allclose(mended[interface], plain[interface])
+    radius = steep.points().norm(dim=-1)
+    far = ~interface & (radius > 0.8)
+    assert float((plain[far] - (radius[far] - 0.5)).abs().min()) > 0.5      # still three times too steep
+    assert float((mended[far] - (radius[far] - 0.5)).abs().max()) < 0.1     # a distance again (voxel 0.13)
+    with pytest.raises(ValueError, match="regulariser_band=2.0 needs redistance=true"):
+        OptimSettings(regulariser_band=2.0)
+    sphere = SDFGrid.from_function(lambda p: p.norm(dim=-1) - 0.5, 16, -1.0, 1.0)
+    wide = losses(OptimSettings(redistance=True, regulariser_band=100.0)).regulariser(sphere)
+    full = losses(OptimSettings()).regulariser(sphere)
+    assert float(wide[2]) == pytest.approx(float(full[2]) * 14 ** 3 / 16 ** 3, rel=1e-5)  # the Laplacian
