@@ -66,6 +66,16 @@ class OptimSettings:
         regulariser_band: the regularisers at the vertices within this many voxels of the surface
             only (None: every vertex, the box's faces too); needs ``redistance``, which keeps the
             values beyond it a distance, and costs a fraction at fine levels.
+        erosion: the last ``erosion_levels`` levels start from the level before shrunk by this many
+            voxels of their own grid (the values raised by it), so that they grow the surface back
+            from inside and a concavity the coarser level bridged opens again (0: as it ends;
+            not in the paper; docs/mvr_method.md).
+        erosion_keep: with it, a part is thinned to no less than this half-thickness (voxels) and
+            one thinner not at all (``shrink``): the erosion does not remove thin parts, which a
+            level does not grow back (None: every value raised by ``erosion``).
+        erosion_levels: how many of the schedule's last levels start shrunk (never the first).
+        erosion_pass_factor: a level that starts shrunk runs up to this many times its
+            ``max_passes`` (rounded up): it has more to grow back.
         cameras: refine each camera's pose (an orbit about the origin, a distance and an aim, ``CameraPoses``) with
             the shape, by the render's camera gradient (not in the paper; for inexact cameras).
         camera_lr: Adam's step for the poses (radians for the orbit and the aim, the log of the
@@ -105,6 +115,10 @@ class OptimSettings:
     carve_tolerance: float = 1.0
     redistance: bool = False
     regulariser_band: Optional[float] = None
+    erosion: float = 2.0
+    erosion_keep: Optional[float] = 1.5
+    erosion_levels: int = 1
+    erosion_pass_factor: float = 2.0
     cameras: bool = False
     camera_lr: float = 0.003
     camera_levels: int = 1
@@ -122,6 +136,11 @@ class OptimSettings:
                 raise ValueError(f"regulariser_band={self.regulariser_band} needs redistance=true (beyond the band "
                                  f"nothing else keeps the values a distance)")
         check_float(self.silhouette_tolerance, "silhouette_tolerance", minimum=0, maximum=0.45)
+        check_float(self.erosion, "erosion", minimum=0)
+        if self.erosion_keep is not None:
+            check_float(self.erosion_keep, "erosion_keep", minimum=0)
+        check_int(self.erosion_levels, "erosion_levels", minimum=1)
+        check_float(self.erosion_pass_factor, "erosion_pass_factor", minimum=1)
         if self.image_loss not in IMAGE_LOSSES:
             raise ValueError(f"image_loss must be one of {', '.join(IMAGE_LOSSES)}, got {self.image_loss!r}")
         check_int(self.image_levels, "image_levels", minimum=1)
@@ -149,6 +168,17 @@ class OptimSettings:
                                                           _is_pass_count))
         object.__setattr__(self, "max_seconds", _per_level(self.max_seconds, "max_seconds",
                                                            "a positive number or null (no limit)", _is_time_limit))
+
+    def erodes(self, level: int, levels: int) -> bool:
+        """Whether level ``level`` (0-based) of a schedule of ``levels`` levels starts from the
+        level before shrunk by ``erosion`` voxels."""
+        return self.erosion > 0 and level > 0 and level >= levels - self.erosion_levels
+
+    def passes(self, level: int, levels: int) -> int:
+        """Passes at most of level ``level`` of a schedule of ``levels`` levels: ``max_passes``,
+        times ``erosion_pass_factor`` (rounded up) where the level starts shrunk."""
+        n = int(self.for_level("max_passes", level))
+        return math.ceil(n * self.erosion_pass_factor) if self.erodes(level, levels) else n
 
     def for_level(self, name: str, level: int):
         """A per-level setting (``max_passes``, ``max_seconds``) for level ``level`` (0-based); a
@@ -235,6 +265,27 @@ def fill_cavities(values: torch.Tensor) -> torch.Tensor:
         return v.clone()
     mask = torch.from_numpy(enclosed).to(v.device)
     return torch.where(mask, -v.abs(), v)
+
+
+def shrink(values: torch.Tensor, voxel: float, erosion: float, keep: Optional[float]) -> torch.Tensor:
+    """``values`` (N, N, N), an SDF of spacing ``voxel``, with its shape shrunk by ``erosion``
+    voxels (``OptimSettings.erosion``): every value raised by that much, or with ``keep``, by
+    ``min(erosion, max(0, depth - keep))`` voxels, where ``depth`` is the deepest inside value
+    within ``erosion + keep`` voxels of the sample (in voxels): a part whose half-thickness is
+    under ``erosion + keep`` is thinned to ``keep`` at most, one under ``keep`` not at all, so the
+    erosion does not remove what the level could not grow back. Returns a new tensor (no gradient)."""
+    v = values.detach()
+    if keep is None:
+        return v + erosion * voxel
+    from scipy import ndimage  # heavy: only the thinning needs it
+
+    radius = erosion + keep
+    n = int(math.ceil(radius))
+    offsets = np.mgrid[-n:n + 1, -n:n + 1, -n:n + 1]
+    ball = (offsets ** 2).sum(0) <= radius * radius
+    depth = -ndimage.minimum_filter(v.cpu().numpy(), footprint=ball, mode="nearest") / voxel
+    amount = np.clip(depth - keep, 0.0, erosion) * voxel
+    return v + torch.from_numpy(amount).to(device=v.device, dtype=v.dtype)
 
 
 class CameraPoses:
@@ -427,7 +478,7 @@ def cube_voxel_size(grid: SDFGrid) -> float:
 
 
 def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int = 0, progress: bool = True,
-                   description: str = "") -> tuple[SDFGrid, LevelReport]:
+                   description: str = "", max_passes: Optional[int] = None) -> tuple[SDFGrid, LevelReport]:
     """Fits one grid to the target views (one level of the coarse-to-fine schedule).
 
     Args:
@@ -437,6 +488,7 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
             ``level + 1``.
         seed: seeds the order of the views.
         progress: show a tqdm bar over the passes.
+        max_passes: the level's passes at most (None: ``losses.settings.max_passes`` for the level).
     Returns:
         the fitted grid (detached) and the level's report.
     """
@@ -444,7 +496,7 @@ def optimise_level(grid: SDFGrid, losses: ViewLosses, level: int = 0, seed: int 
         raise ValueError(f"optimise_level fits one grid, got a batch of {grid.batch_size}")
     t_start = time.perf_counter()
     fit = _start_fitting(grid, losses.settings)
-    passes = _run_passes(fit, losses, level, seed, progress, description, t_start)
+    passes = _run_passes(fit, losses, level, seed, progress, description, t_start, max_passes)
     final = SDFGrid(fit.values.detach().clone(), fit.lo, fit.hi)
     with torch.no_grad():
         _, eik, lap = losses.regulariser(final)
@@ -501,12 +553,13 @@ def _start_fitting(grid: SDFGrid, settings: OptimSettings) -> _Fitting:
 
 
 def _run_passes(fit: _Fitting, losses: ViewLosses, level: int, seed: int, progress: bool, description: str,
-                t_start: float) -> _Passes:
+                t_start: float, max_passes: Optional[int] = None) -> _Passes:
     """Passes over the views until a stopping rule of ``losses.settings`` holds (``t_start``: the
-    level's ``time.perf_counter()`` at its start, for ``max_seconds``)."""
+    level's ``time.perf_counter()`` at its start, for ``max_seconds``; ``max_passes``: None for the
+    settings' own)."""
     settings = losses.settings
     gen = torch.Generator().manual_seed(int(seed) * 1000 + level)
-    max_passes = int(settings.for_level("max_passes", level))
+    max_passes = int(settings.for_level("max_passes", level) if max_passes is None else max_passes)
     max_seconds = settings.for_level("max_seconds", level)
     n_views = losses.cameras.batch_size
     history: list[dict] = []

@@ -26,7 +26,7 @@ from sdfcommon.tooling.pictures import labelled_grid
 from sdfcommon.tooling.serialization import load_torch
 
 from .metrics import NORMALISATION, surface_distances
-from .optimize import CameraPoses, LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level
+from .optimize import CameraPoses, LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level, shrink
 from .schedule import Schedule
 from .targets import NORMAL_MODES, Target, TargetImages, make_target
 
@@ -465,6 +465,10 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
             current = _initial_grid(plan)
         if current.resolution[0] != res:
             current = current.resample(res)
+        eroded = plan.optim.erodes(level, n_levels)
+        if eroded:  # grow the surface back from inside: a bridged concavity opens again
+            current = SDFGrid(shrink(current.values[0], float(current.voxel_size.min()), plan.optim.erosion,
+                                     plan.optim.erosion_keep)[None], current.bbox_min, current.bbox_max)
         size = plan.schedule.image_size_for(cams_true, plan.lo, plan.hi, res)
         cams_true = plan.rig.cameras(size)
         if level not in rendered:
@@ -478,7 +482,8 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
         desc = f"level {level + 1}/{n_levels} {res}^3 {size}px"
         if rounds > 1:
             desc = f"round {round_index + 1}/{rounds} {desc}"
-        current, report = optimise_level(current, losses, level, plan.seed, progress, desc)
+        current, report = optimise_level(current, losses, level, plan.seed, progress, desc,
+                                         max_passes=plan.optim.passes(level, n_levels))
         reports.append(report)
         log.info("%s: %d passes, %d updates, loss %.3e -> %.3e, %.1fs (%s)", desc, report.passes, report.updates,
                  report.loss_start, report.loss_end, report.seconds, report.stop_reason)

@@ -21,11 +21,11 @@ def _height(mesh: trimesh.Trimesh, x: float) -> float:
     return 3.0 - float(hits.t[0])
 
 
-def _dent(tmp_path, scene, passes=4, seed=0):
+def _dent(tmp_path, scene, passes=4, seed=0, erosion=2.0):
     configure_runtime(threads=1)
     res = [8, 16, 24]
     result = reconstruct("dented_box", tmp_path, target_settings=TargetSettings(mesh_resolution=64), scene=scene,
-                         schedule=Schedule(resolutions=res), optim=OptimSettings(max_passes=passes), progress=False,
+                         schedule=Schedule(resolutions=res), optim=OptimSettings(max_passes=passes, erosion=erosion), progress=False,
                          seed=seed)
     target = trimesh.load(tmp_path / "target.ply", process=False)
     voxel = 2.0 / (res[-1] - 1)
@@ -36,7 +36,8 @@ def _dent(tmp_path, scene, passes=4, seed=0):
 
 def test_dent_is_carved_by_the_default_light(tmp_path):
     result, top, bottom, voxel = _dent(tmp_path, default_scene())
-    # Silhouettes alone leave the top flat (nothing carved). Measured on 2026-11-28: 96%, 89% and 93%
+    # Silhouettes alone leave the top flat (nothing carved). Measured on 2026-11-28 without the erosion
+    # of the last level (optim.erosion=0): 96%, 89% and 93%
     # of the depth (seeds 0, 1, 2), with the visibility gradient 93% and 92% (seeds 1, 2).
     assert top - _height(result.mesh, 0.0) > 0.75 * (top - bottom)
     assert abs(_height(result.mesh, 0.7) - top) < voxel
@@ -64,7 +65,8 @@ def test_visibility_gradient_carves_the_dent_the_paper_gradient_bumps(tmp_path):
     for gradient in ("paper", "visibility"):
         scene = replace(default_scene(), gradient=gradient, **light)
         for seed in (0, 1, 2):
-            result, top, bottom, _ = _dent(tmp_path / f"{gradient}{seed}", scene, passes=6, seed=seed)
+            # without the last level's erosion, as measured (it came later)
+            result, top, bottom, _ = _dent(tmp_path / f"{gradient}{seed}", scene, passes=6, seed=seed, erosion=0.0)
             carved[gradient, seed] = (top - _height(result.mesh, 0.0)) / (top - bottom)
     # Measured: paper -0.81, -0.68, -0.79; visibility 0.34, 0.88, 0.96.
     assert np.mean([carved["visibility", s] for s in (0, 1, 2)]) > 0.5

@@ -145,7 +145,7 @@ def test_toy_run_writes_table_pictures_and_reuses_runs(tmp_path, monkeypatch):
     rows = json.loads((out / "results.json").read_text())["rows"]
     assert {(r["mesh"], r["config"]) for r in rows} == {("ball", "default"), ("ball", "paper")}
     assert all(r["hausdorff_rel"] > 0 and r["seconds"] > 0 for r in rows)
-    assert all(0 < r["truth_hausdorff_rel"] < r["hausdorff_rel"] for r in rows)
+    assert all(0 < r["truth_hausdorff_rel"] < 0.05 for r in rows)  # a reference: a fit may beat it
     assert (out / "paper" / "ball" / "errors.png").stat().st_size > 1000
     text = (docs / "mvr_real_scans.md").read_text()
     assert "| ball |" in text and "mvr_errors_ball.png" in text and (docs / "mvr_errors_ball.png").is_file()

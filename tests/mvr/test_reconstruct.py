@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import importlib
 import json
 import logging
 import subprocess
@@ -16,6 +17,7 @@ import trimesh
 
 from mvr import (GridSettings, NoiseSettings, OptimSettings, Schedule, ScoringSettings, TargetSettings,
                  configure_runtime, default_scene, reconstruct)
+from renderer import SDFGrid
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -256,3 +258,38 @@ def test_camera_rounds_run_the_schedule_again_with_the_refined_cameras(tmp_path)
     np.testing.assert_array_equal(again.grid.values.numpy(), first.grid.values.numpy())
     with pytest.raises(ValueError, match="camera_rounds=2 needs cameras=true"):
         OptimSettings(camera_rounds=2)
+
+
+def test_erosion_shrinks_the_last_levels_start_and_gives_them_their_passes(tmp_path, monkeypatch):
+    """``optim.erosion``: the last ``erosion_levels`` levels (never the first) start from the level
+    before with every value raised by ``erosion`` of their voxels, and run up to
+    ``erosion_pass_factor`` times their passes."""
+    rec = importlib.import_module("mvr.reconstruct")  # the package's ``reconstruct`` is the function
+    starts = []
+    real = rec.optimise_level
+
+    def spy(grid, losses, level, seed, progress, description, max_passes=None):
+        starts.append((level, grid.values.clone(), float(grid.voxel_size.min()), max_passes))
+        return real(grid, losses, level, seed, progress, description, max_passes=max_passes)
+
+    monkeypatch.setattr(rec, "optimise_level", spy)
+    settings = dict(SMALL, optim=OptimSettings(max_passes=1, min_passes=2, erosion=2.0, erosion_keep=None, erosion_levels=2,
+                                               erosion_pass_factor=2.0, hard_view_updates=1,
+                                               easy_view_updates=1))
+    result = reconstruct("sphere", tmp_path / "eroded", schedule=Schedule(resolutions=[8, 12, 16]), **settings)
+    assert [s[0] for s in starts] == [0, 1, 2]
+    assert [s[3] for s in starts] == [1, 2, 2]
+    assert [r.passes for r in result.levels][1:] == [2, 2]
+    for level, res in ((1, 12), (2, 16)):
+        before = torch.load(tmp_path / "eroded" / "checkpoints" / f"level_0{level}.pt", weights_only=False)
+        resampled = SDFGrid(before["values"], before["bbox_min"], before["bbox_max"]).resample(res).values
+        assert torch.allclose(starts[level][1], resampled + 2.0 * starts[level][2], atol=1e-6)
+    assert not OptimSettings(erosion=2.0).erodes(0, 4) and OptimSettings(erosion=2.0).erodes(3, 4)
+    assert not OptimSettings(erosion=2.0).erodes(2, 4) and not OptimSettings(erosion=0.0).erodes(3, 4)
+    assert OptimSettings(max_passes=[10, 10, 10, 15]).passes(3, 4) == 30
+    assert OptimSettings(max_passes=3, erosion_pass_factor=1.5).passes(3, 4) == 5
+    assert OptimSettings(max_passes=3).passes(2, 4) == 3 and OptimSettings(erosion=0.0).passes(3, 4) == 10
+    for bad, match in ((dict(erosion=-1.0), "erosion must be"), (dict(erosion_levels=0), "erosion_levels"),
+                       (dict(erosion_pass_factor=0.5), "erosion_pass_factor")):
+        with pytest.raises(ValueError, match=match):
+            OptimSettings(**bad)

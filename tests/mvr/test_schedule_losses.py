@@ -119,3 +119,25 @@ def test_optim_settings_bad_input():
     s = OptimSettings(max_passes=[3, 4], max_seconds=[None, 5.0])
     assert [s.for_level("max_passes", k) for k in range(4)] == [3, 4, 4, 4]
     assert s.for_level("max_seconds", 0) is None
+
+
+def test_shrink_thins_thick_parts_and_keeps_thin_ones():
+    """``shrink``: without ``keep`` every value rises by the erosion; with it a sphere's surface
+    moves in by the erosion while a rod thinner than ``keep`` is left as it was, and the values
+    never fall."""
+    from mvr.optimize import shrink
+
+    grid = SDFGrid.from_function(
+        lambda p: torch.minimum(p.norm(dim=-1) - 0.5,
+                                torch.maximum(p[..., 1:].norm(dim=-1) - 0.04, p[..., 0].abs() - 0.9)), 64, -1.0, 1.0)
+    v, h = grid.values[0], float(grid.voxel_size.min())
+    assert torch.allclose(shrink(v, h, 2.0, None), v + 2.0 * h)
+    out = shrink(v, h, 2.0, 1.5)
+    assert bool((out >= v).all())
+    points = grid.points()
+    rod = (points[..., 0].abs() > 0.75) & (points[..., 0].abs() < 0.85)
+    assert torch.equal(out[rod], v[rod])                      # 0.04 is 0.6 voxel: under keep
+    deep = points.norm(dim=-1) < 0.4
+    assert torch.allclose(out[deep], v[deep] + 2.0 * h)       # inside the sphere: the full erosion
+    inside_after = (out < 0) & (points.norm(dim=-1) > 0.45) & (points[..., 1:].norm(dim=-1) > 0.1)
+    assert not bool(inside_after.any())                       # the sphere's skin went
