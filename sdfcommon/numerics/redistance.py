@@ -60,14 +60,6 @@ def _projections(values: np.ndarray, interface: np.ndarray) -> tuple[np.ndarray,
     return np.argwhere(interface).astype(np.float64) - step, ok
 
 
-def surface_points(values: np.ndarray, spacing: float, interface: np.ndarray) -> np.ndarray:
-    """(P, 3) points on the zero set of the grid ``values`` (Nx, Ny, Nz), world units with the
-    grid's first vertex at 0 and spacing ``spacing``: the edge crossings and the usable Newton
-    projections of the ``interface`` vertices."""
-    proj, ok = _projections(values, interface)
-    return np.concatenate([_edge_crossings(values, values < 0), proj[ok]]) * spacing
-
-
 def redistance(values: torch.Tensor, voxel_size: float, exact_band: float = 4.0) -> torch.Tensor:
     """``values`` (Nx, Ny, Nz), an SDF sampled on a lattice of spacing ``voxel_size`` (world
     units), re-distanced: the interface vertices keep their values (so the surface does not move),
@@ -110,4 +102,4 @@ def redistance(values: torch.Tensor, voxel_size: float, exact_band: float = 4.0)
     return torch.from_numpy(out).to(device=values.device, dtype=values.dtype)
 
 
-__all__ = ["interface_mask", "redistance", "surface_points"]
+__all__ = ["interface_mask", "redistance"]
