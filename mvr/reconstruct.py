@@ -465,8 +465,7 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
             current = _initial_grid(plan)
         if current.resolution[0] != res:
             current = current.resample(res)
-        eroded = plan.optim.erodes(level, n_levels)
-        if eroded:  # grow the surface back from inside: a bridged concavity opens again
+        if plan.optim.erodes(level, n_levels):  # grow the surface back from inside: a bridged concavity opens
             current = SDFGrid(shrink(current.values[0], float(current.voxel_size.min()), plan.optim.erosion,
                                      plan.optim.erosion_keep)[None], current.bbox_min, current.bbox_max)
         size = plan.schedule.image_size_for(cams_true, plan.lo, plan.hi, res)
