@@ -286,6 +286,9 @@ def test_erosion_shrinks_the_last_levels_start_and_gives_them_their_passes(tmp_p
         assert torch.allclose(starts[level][1], resampled + 2.0 * starts[level][2], atol=1e-6)
     assert not OptimSettings(erosion=2.0).erodes(0, 4) and OptimSettings(erosion=2.0).erodes(3, 4)
     assert not OptimSettings(erosion=2.0).erodes(2, 4) and not OptimSettings(erosion=0.0).erodes(3, 4)
+    # refined cameras would take the shrunk start's silhouettes for camera error: no erosion, no extra passes
+    assert not OptimSettings(erosion=2.0, cameras=True).erodes(3, 4)
+    assert OptimSettings(erosion=2.0, cameras=True).passes(3, 4) == 10
     assert OptimSettings(max_passes=[10, 10, 10, 15]).passes(3, 4) == 30
     assert OptimSettings(max_passes=3, erosion_pass_factor=1.5).passes(3, 4) == 5
     assert OptimSettings(max_passes=3).passes(2, 4) == 3 and OptimSettings(erosion=0.0).passes(3, 4) == 10
