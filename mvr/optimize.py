@@ -73,9 +73,9 @@ class OptimSettings:
         erosion_keep: with it, a part is thinned to no less than this half-thickness (voxels) and
             one thinner not at all (``shrink``): the erosion does not remove thin parts, which a
             level does not grow back (None: every value raised by ``erosion``).
-        erosion_levels: how many of the schedule's last levels start shrunk (never the first).
-            None does where the cameras are refined (``cameras``): the shrunk start's silhouettes
-            would be read as camera error (bunny00, seed 1: 3.5 times the noiseless distance).
+        erosion_levels: how many of the schedule's last levels start shrunk (never the first; no
+            level where the cameras are refined, ``cameras``: the poses would read the shrunk
+            start's silhouettes as camera error, bunny00's seed 1 3.5 times the noiseless distance).
         erosion_pass_factor: a level that starts shrunk runs up to this many times its
             ``max_passes`` (rounded up): it has more to grow back.
         cameras: refine each camera's pose (an orbit about the origin, a distance and an aim, ``CameraPoses``) with
