@@ -38,7 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # checkout's own (the installed configs package, sdfdiff_configs, is the installed checkout's).
 CONFIGS = Path(svr.__file__).resolve().parents[1] / "configs"
 
-PHASES = ("data", "encoder", "decoder", "refiner", "render", "regularisers", "optimiser")
+PHASES = ("data", "prior", "encoder", "decoder", "refiner", "render", "regularisers", "optimiser")
 STAGE_STEPS = tuple(f"step {stage}" for stage in STAGES)
 
 
@@ -121,6 +121,12 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
             it = iter(loader)
             next(it)
 
+    exclude = net.prior.exclusion(batch.category, batch.object_index) if net.prior is not None else None
+
+    def prior() -> None:
+        with torch.no_grad():
+            net.shape_prior(images, batch.views[:, 0], exclude)
+
     def encoder() -> None:
         net.zero_grad(set_to_none=True)
         (net.encoder(images) * g_latent).sum().backward()
@@ -153,8 +159,8 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     def optimiser() -> None:
         opt.step()
 
-    fns = dict(data=data, encoder=encoder, decoder=decoder, refiner=refiner, render=render,
-               regularisers=regularisers, optimiser=optimiser)
+    fns = dict(data=data, **({"prior": prior} if net.prior is not None else {}), encoder=encoder, decoder=decoder,
+               refiner=refiner, render=render, regularisers=regularisers, optimiser=optimiser)
     if stages:
         for stage in STAGES:
             mod = build_module(settings, net, stage, dm).to(device)
@@ -193,7 +199,7 @@ def _mib(r: dict) -> str:
 
 def table(res: dict) -> str:
     lines = ["| phase | ms (median) | peak MiB | images/s |", "|---|---:|---:|---:|"]
-    for name in PHASES + tuple(s for s in STAGE_STEPS if s in res["phases"]):
+    for name in tuple(s for s in PHASES + STAGE_STEPS if s in res["phases"]):
         r = res["phases"][name]
         ips = f"{r['images_per_s']:.1f}" if "images_per_s" in r else ""
         lines.append(f"| {name} | {_ms(r)} | {_mib(r)} | {ips} |")
@@ -250,6 +256,8 @@ examples:
 phases (each timed alone, median over --repeats after one warm-up; CUDA calls are synchronised):
   data           one batch from the training data loader (its worker processes included, as
                  training sees it)
+  prior          the shape prior's lookup for the batch's inputs (model=pixel_prior only): the
+                 training objects whose silhouettes look most like each input, and their hulls
   encoder / decoder / refiner
                  forward + backward of that module alone (weights' gradients; the refiner's input
                  is the decoder's output, detached, as in the refine stage)
