@@ -61,7 +61,11 @@ class ShapePrior(nn.Module):
     batch's ``(category, object_index)`` can exclude the object itself), saved with the network and
     filled by ``fill``; ``hulls`` (objects, S^3) uint8, each object's soft visual hull at the head's
     samples, made from the stored silhouettes (``rebuild``) after ``fill`` and after loading weights,
-    so a checkpoint holds 10 MB for the demo's 416 objects instead of 24.
+    so a checkpoint holds 10 MB for the demo's 416 objects instead of 24. ``bank`` (24, objects,
+    1024) float32, the silhouettes in [0, 1], and ``bank_sums`` (24, objects), made by ``rebuild``
+    too and never saved: the lookup of every training step compares against them, which otherwise
+    converted the stored bytes each time (41 MB in memory for the demo, 511 MB for the bench's
+    5200 objects).
     """
 
     def __init__(self, objects: int, side: int, neighbours: int = 4, categories: int = 1) -> None:
@@ -79,6 +83,8 @@ class ShapePrior(nn.Module):
         self.register_buffer("first", torch.zeros(categories, dtype=torch.long))
         self.register_buffer("hulls", torch.zeros(objects, side ** 3, dtype=torch.uint8), persistent=False)
         self.register_buffer("grid", torch.zeros(NMR_NUM_VIEWS, 1, side ** 3, 2), persistent=False)
+        self.register_buffer("bank", torch.zeros(NMR_NUM_VIEWS, objects, FEATURE_SIDE ** 2), persistent=False)
+        self.register_buffer("bank_sums", torch.zeros(NMR_NUM_VIEWS, objects), persistent=False)
 
     def attach(self, points: torch.Tensor) -> None:
         """Where the hulls are sampled: ``points`` (S, S, S, 3), the head's sample positions (``SVRNet``
@@ -90,7 +96,9 @@ class ShapePrior(nn.Module):
 
     @torch.no_grad()
     def rebuild(self) -> None:
-        """Each object's soft visual hull from its stored 32^2 silhouettes."""
+        """Each object's soft visual hull from its stored 32^2 silhouettes, and the lookup's ``bank``."""
+        self.bank.copy_(self.silhouettes.float().div_(255.0))
+        self.bank_sums.copy_(self.bank.sum(2))
         for g in range(self.objects):
             alpha = self.silhouettes[:, g].float().div(255.0).reshape(NMR_NUM_VIEWS, FEATURE_SIDE, FEATURE_SIDE)
             self.hulls[g] = visual_hull(alpha, self.grid).mul(255.0).round().to(torch.uint8)
@@ -123,7 +131,7 @@ class ShapePrior(nn.Module):
         score = torch.empty(len(q), self.objects, device=q.device)
         for v in torch.unique(views).tolist():  # one product per view
             rows = (views == v).nonzero()[:, 0]
-            score[rows] = soft_silhouette_iou(q[rows], self.silhouettes[v].float().div_(255.0))
+            score[rows] = soft_silhouette_iou(q[rows], self.bank[v], self.bank_sums[v])
         if exclude is not None:
             keep = exclude >= 0
             score[keep.nonzero()[:, 0], exclude[keep]] = -1.0

@@ -142,10 +142,12 @@ def test_a_network_with_a_prior_checks_its_parts_and_uses_it():
     # The silhouettes travel with the weights; the hulls are made from them again on loading.
     state = net.state_dict()
     assert {"prior.silhouettes", "prior.first"} <= set(state) and "prior.hulls" not in state
+    assert "prior.bank" not in state and "prior.bank_sums" not in state  # made again, as the hulls
     again = SVRNet(enc, dec, ref, local=local, prior=ShapePrior(objects=5, side=side, neighbours=1)).eval()
     assert again.prior.hulls.sum() == 0
     again.load_state_dict(state)
     assert torch.equal(again.prior.hulls, net.prior.hulls) and net.prior.hulls.sum() > 0
+    assert torch.equal(again.prior.bank, net.prior.bank) and net.prior.bank.sum() > 0
 
 
 def test_model_pixel_prior_composes():
@@ -157,3 +159,25 @@ def test_model_pixel_prior_composes():
     assert isinstance(net.prior, ShapePrior) and net.local.prior and net.prior.side == 32
     assert net.prior.hulls.shape == (20, 32 ** 3)
 
+
+
+def test_the_kept_bank_scores_as_the_stored_silhouettes_do():
+    """The lookup compares against ``bank`` and ``bank_sums``, kept since the last ``rebuild``: the
+    same soft IoU, to float precision, as the stored bytes converted on the spot."""
+    from svr.nmr.metrics import silhouette_features, soft_silhouette_iou
+
+    gen = torch.Generator().manual_seed(0)
+    prior = ShapePrior(objects=40, side=8, neighbours=3)
+    prior.silhouettes.copy_(torch.randint(0, 256, prior.silhouettes.shape, generator=gen, dtype=torch.uint8))
+    prior.attach(grid_points(8))  # rebuilds: the silhouettes are set
+    assert torch.equal(prior.bank, prior.silhouettes.float() / 255)
+    alpha = torch.rand(6, 64, 64, generator=gen)
+    views = torch.tensor([0, 0, 5, 11, 23, 5])
+    q = silhouette_features(alpha)
+    for v in views.unique().tolist():
+        direct = soft_silhouette_iou(q, prior.silhouettes[v].float() / 255)
+        torch.testing.assert_close(soft_silhouette_iou(q, prior.bank[v], prior.bank_sums[v]), direct)
+    found = prior.nearest(alpha, views)
+    expect = torch.stack([soft_silhouette_iou(q[i:i + 1], prior.silhouettes[int(v)].float() / 255)[0].topk(3).indices
+                          for i, v in enumerate(views)])
+    assert torch.equal(found, expect)
