@@ -159,8 +159,10 @@ def run_phases(overrides: list[str], device_name: str, repeats: int, stages: boo
     def optimiser() -> None:
         opt.step()
 
-    fns = dict(data=data, **({"prior": prior} if net.prior is not None else {}), encoder=encoder, decoder=decoder,
-               refiner=refiner, render=render, regularisers=regularisers, optimiser=optimiser)
+    fns = dict(data=data, encoder=encoder, decoder=decoder, refiner=refiner, render=render,
+               regularisers=regularisers, optimiser=optimiser)
+    if net.prior is not None:
+        fns["prior"] = prior
     if stages:
         for stage in STAGES:
             mod = build_module(settings, net, stage, dm).to(device)

@@ -100,7 +100,7 @@ class ShapePrior(nn.Module):
         self.bank.copy_(self.silhouettes.float().div_(255.0))
         self.bank_sums.copy_(self.bank.sum(2))
         for g in range(self.objects):
-            alpha = self.silhouettes[:, g].float().div(255.0).reshape(NMR_NUM_VIEWS, FEATURE_SIDE, FEATURE_SIDE)
+            alpha = self.bank[:, g].reshape(NMR_NUM_VIEWS, FEATURE_SIDE, FEATURE_SIDE)
             self.hulls[g] = visual_hull(alpha, self.grid).mul(255.0).round().to(torch.uint8)
 
     @torch.no_grad()

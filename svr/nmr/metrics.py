@@ -219,7 +219,8 @@ def silhouette_features(alpha: torch.Tensor) -> torch.Tensor:
     return alpha.reshape(n, h // 2, 2, w // 2, 2).mean((2, 4)).reshape(n, -1)
 
 
-def soft_silhouette_iou(queries: torch.Tensor, bank: torch.Tensor, bank_sums: Optional[torch.Tensor] = None) -> torch.Tensor:
+def soft_silhouette_iou(queries: torch.Tensor, bank: torch.Tensor,
+                        bank_sums: Optional[torch.Tensor] = None) -> torch.Tensor:
     """(Q, N) soft IoU ``<a, b> / (|a| + |b| - <a, b>)`` of every query (Q, F) with every bank row (N, F)
     (``silhouette_features`` of both); ``bank_sums`` (N,), the rows' sums where a caller keeps them."""
     inter = queries @ bank.T
