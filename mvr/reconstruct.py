@@ -9,7 +9,7 @@ import hashlib
 import json
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -26,7 +26,8 @@ from sdfcommon.tooling.pictures import labelled_grid
 from sdfcommon.tooling.serialization import load_torch
 
 from .metrics import NORMALISATION, surface_distances
-from .optimize import CameraPoses, LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level, shrink
+from .optimize import (CameraPoses, LevelReport, OptimSettings, ViewLosses, fill_cavities, optimise_level,
+                       residual_carve, shrink)
 from .schedule import Schedule
 from .targets import NORMAL_MODES, Target, TargetImages, make_target
 
@@ -158,7 +159,7 @@ def _level_checkpoints(out_dir: Path) -> list[Path]:
 def stage_count(schedule: Schedule, optim: OptimSettings) -> int:
     """The levels a run fits in all, as its checkpoints number them: the schedule's, once per round
     of ``optim.camera_rounds``."""
-    return len(schedule.grid_resolutions()) * optim.camera_rounds
+    return len(schedule.grid_resolutions()) * optim.camera_rounds + (1 if optim.residual_carve > 0 else 0)
 
 
 def finished_levels(out_dir: Union[str, Path]) -> int:
@@ -459,13 +460,14 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
     n_levels, rounds = len(plan.resolutions), plan.optim.camera_rounds
     rendered: dict[int, TargetImages] = {}  # each level's target views, rendered once for all rounds
     for stage in range(start, plan.stages):
-        round_index, level = divmod(stage, n_levels)
+        refit = stage == n_levels * rounds  # the residual carve's refit after the schedule (optim.residual_carve)
+        round_index, level = (rounds - 1, n_levels - 1) if refit else divmod(stage, n_levels)
         res = plan.resolutions[level]
         if level == 0 and stage > 0:  # a later round: the sphere again (the cameras keep their step)
             current = _initial_grid(plan)
         if current.resolution[0] != res:
             current = current.resample(res)
-        if plan.optim.erodes(level, n_levels):  # grow the surface back from inside: a bridged concavity opens
+        if plan.optim.erodes(level, n_levels) and not refit:  # grow the surface back from inside: a bridged concavity opens
             current = SDFGrid(shrink(current.values[0], float(current.voxel_size.min()), plan.optim.erosion,
                                      plan.optim.erosion_keep)[None], current.bbox_min, current.bbox_max)
         size = plan.schedule.image_size_for(cams_true, plan.lo, plan.hi, res)
@@ -481,8 +483,16 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
         desc = f"level {level + 1}/{n_levels} {res}^3 {size}px"
         if rounds > 1:
             desc = f"round {round_index + 1}/{rounds} {desc}"
-        current, report = optimise_level(current, losses, level, plan.seed, progress, desc,
-                                         max_passes=plan.optim.passes(level, n_levels))
+        if refit:
+            o = plan.optim
+            current = residual_carve(current, losses, o.residual_carve, o.residual_carve_views,
+                                     o.residual_carve_threshold)
+            losses.settings = replace(o, lr=o.lr * o.refit_lr_scale)
+            current, report = optimise_level(current, losses, n_levels, plan.seed, progress,
+                                             f"residual carve, refit {res}^3 {size}px", max_passes=o.refit_passes)
+        else:
+            current, report = optimise_level(current, losses, level, plan.seed, progress, desc,
+                                             max_passes=plan.optim.passes(level, n_levels))
         reports.append(report)
         log.info("%s: %d passes, %d updates, loss %.3e -> %.3e, %.1fs (%s)", desc, report.passes, report.updates,
                  report.loss_start, report.loss_end, report.seconds, report.stop_reason)

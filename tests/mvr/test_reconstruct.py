@@ -296,3 +296,20 @@ def test_erosion_shrinks_the_last_levels_start_and_gives_them_their_passes(tmp_p
                        (dict(erosion_pass_factor=0.5), "erosion_pass_factor")):
         with pytest.raises(ValueError, match=match):
             OptimSettings(**bad)
+
+
+def test_residual_carve_adds_a_refit_after_the_schedule_that_a_rerun_resumes_after(tmp_path):
+    """``optim.residual_carve``: one more stage after the last level, at its resolution and images,
+    numbered on (level 3 of a 2-level schedule), with at most ``refit_passes`` passes; its
+    checkpoint is where a rerun resumes. Refused with refined cameras."""
+    optim = OptimSettings(max_passes=1, residual_carve=2.0, refit_passes=2, refit_lr_scale=0.2)
+    settings = dict(SMALL, optim=optim)
+    result = reconstruct("sphere", tmp_path, schedule=Schedule(resolutions=[8, 12]), **settings)
+    assert [r.level for r in result.levels] == [1, 2, 3]
+    assert [r.resolution for r in result.levels] == [8, 12, 12]
+    assert result.levels[2].image_size == result.levels[1].image_size and result.levels[2].passes <= 2
+    assert (tmp_path / "checkpoints" / "level_03.pt").is_file()
+    again = reconstruct("sphere", tmp_path, schedule=Schedule(resolutions=[8, 12]), **settings)
+    assert again.metrics["resumed_from_level"] == 3
+    with pytest.raises(ValueError, match="residual_carve"):
+        OptimSettings(residual_carve=2.0, cameras=True)

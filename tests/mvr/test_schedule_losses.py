@@ -141,3 +141,34 @@ def test_shrink_thins_thick_parts_and_keeps_thin_ones():
     assert torch.allclose(out[deep], v[deep] + 2.0 * h)       # inside the sphere: the full erosion
     inside_after = (out < 0) & (points.norm(dim=-1) > 0.45) & (points[..., 1:].norm(dim=-1) > 0.1)
     assert not bool(inside_after.any())                       # the sphere's skin went
+
+
+def test_residual_carve_opens_a_bridged_dent_and_little_else():
+    """``residual_carve``: a box whose top dent (``mvr.shapes``' dented box, scaled into the grid) is
+    filled in, against the dented box's images: the samples it takes out of the shape lie in the dent,
+    where the filled box is wrong, or within the rays' depth (3 samples) past it, and reach a good
+    share of it."""
+    from mvr.optimize import ViewLosses, residual_carve
+    from mvr.shapes import dented_box_sdf, rounded_box_sdf
+    from renderer import Scene, TraceSettings, render
+
+    scale = 0.55
+    truth = SDFGrid.from_function(lambda p: dented_box_sdf(p / scale) * scale, 32, -1.0, 1.0)
+    filled = SDFGrid.from_function(lambda p: rounded_box_sdf(p / scale, (1.0, 0.6, 1.0), 0.1) * scale, 32, -1.0, 1.0)
+    scene = Scene(effects=("silhouette", "shading"), camera_light=7.2, camera_light_falloff=True, ambient=0.2)
+    cams = Cameras.cube_rig(3.0, fov_deg=56, image_size=64)
+    out = render(truth, cams, scene)
+    losses = ViewLosses(cams, out.image.detach(), out.silhouette.detach() >= 0.5, scene, TraceSettings(), "auto",
+                        OptimSettings())
+    carved = residual_carve(filled, losses, depth=3.0, views=3)
+    raised = (carved.values[0] > filled.values[0]) & (filled.values[0] < 0)  # taken out of the shape
+    wrong = (filled.values[0] < 0) & (truth.values[0] > 0)  # inside the filled box, outside the dented one
+    from scipy import ndimage
+
+    near = torch.from_numpy(ndimage.binary_dilation(wrong.numpy(), iterations=3))  # the rays' depth past it
+    assert int(raised.sum()) > 0
+    assert float((raised & near).sum()) / float(raised.sum()) > 0.9    # it carves at the filling
+    assert float((raised & wrong).sum()) / float(wrong.sum()) > 0.5    # and most of it (0.80 measured)
+    assert bool((carved.values[0] >= filled.values[0]).all())          # it only ever removes
+    same = residual_carve(truth, losses, depth=3.0, views=3)           # the right shape: nothing to carve
+    assert torch.equal(same.values[0][truth.values[0] < 0], truth.values[0][truth.values[0] < 0])
