@@ -78,9 +78,10 @@ class OptimSettings:
             start's silhouettes as camera error, bunny00's seed 1 3.5 times the noiseless distance).
         erosion_pass_factor: a level that starts shrunk runs up to this many times its
             ``max_passes`` (rounded up): it has more to grow back.
-        residual_carve: after the last level, carve (``residual_carve``) the samples along the rays
-            of badly shaded pixels to this many samples behind the surface, then refit (0: off; a
-            trial, docs/mvr_method.md).
+        residual_carve: after the last level, carve the samples along the rays of badly shaded
+            pixels to this many samples behind the surface, then refit (0: off, the default; never
+            with ``cameras``; measured in docs/mvr_method.md).
+        residual_carve_rounds: how many times to carve and refit (each a stage of its own).
         residual_carve_views, residual_carve_threshold: the views whose rays must agree on a sample,
             and the image difference (mean over channels) that makes a pixel bad.
         refit_passes, refit_lr_scale: the refit's passes at most, at ``lr`` times this (at the full
@@ -129,6 +130,7 @@ class OptimSettings:
     erosion_levels: int = 1
     erosion_pass_factor: float = 2.0
     residual_carve: float = 0.0
+    residual_carve_rounds: int = 1
     residual_carve_views: int = 3
     residual_carve_threshold: float = 0.1
     refit_passes: int = 10
@@ -156,13 +158,11 @@ class OptimSettings:
         check_int(self.erosion_levels, "erosion_levels", minimum=1)
         check_float(self.erosion_pass_factor, "erosion_pass_factor", minimum=1)
         check_float(self.residual_carve, "residual_carve", minimum=0)
+        check_int(self.residual_carve_rounds, "residual_carve_rounds", minimum=1)
         check_int(self.residual_carve_views, "residual_carve_views", minimum=1)
         check_float(self.residual_carve_threshold, "residual_carve_threshold", minimum=0)
         check_int(self.refit_passes, "refit_passes", minimum=1)
         check_positive(self.refit_lr_scale, "refit_lr_scale")
-        if self.residual_carve > 0 and self.cameras:
-            raise ValueError("residual_carve needs the cameras as given (cameras=false): a carve by the residuals "
-                             "would take camera error for shape")
         if self.image_loss not in IMAGE_LOSSES:
             raise ValueError(f"image_loss must be one of {', '.join(IMAGE_LOSSES)}, got {self.image_loss!r}")
         check_int(self.image_levels, "image_levels", minimum=1)
@@ -190,6 +190,11 @@ class OptimSettings:
                                                           _is_pass_count))
         object.__setattr__(self, "max_seconds", _per_level(self.max_seconds, "max_seconds",
                                                            "a positive number or null (no limit)", _is_time_limit))
+
+    def carve_rounds(self) -> int:
+        """The residual carve's rounds after the schedule: none where ``residual_carve`` is 0 or the
+        cameras are refined (a carve by the residuals would take camera error for shape)."""
+        return self.residual_carve_rounds if self.residual_carve > 0 and not self.cameras else 0
 
     def erodes(self, level: int, levels: int) -> bool:
         """Whether level ``level`` (0-based) of a schedule of ``levels`` levels starts from the

@@ -159,7 +159,7 @@ def _level_checkpoints(out_dir: Path) -> list[Path]:
 def stage_count(schedule: Schedule, optim: OptimSettings) -> int:
     """The levels a run fits in all, as its checkpoints number them: the schedule's, once per round
     of ``optim.camera_rounds``."""
-    return len(schedule.grid_resolutions()) * optim.camera_rounds + (1 if optim.residual_carve > 0 else 0)
+    return len(schedule.grid_resolutions()) * optim.camera_rounds + optim.carve_rounds()
 
 
 def finished_levels(out_dir: Union[str, Path]) -> int:
@@ -460,7 +460,7 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
     n_levels, rounds = len(plan.resolutions), plan.optim.camera_rounds
     rendered: dict[int, TargetImages] = {}  # each level's target views, rendered once for all rounds
     for stage in range(start, plan.stages):
-        refit = stage == n_levels * rounds  # the residual carve's refit after the schedule (optim.residual_carve)
+        refit = stage >= n_levels * rounds  # a residual carve and refit after the schedule (optim.residual_carve)
         round_index, level = (rounds - 1, n_levels - 1) if refit else divmod(stage, n_levels)
         res = plan.resolutions[level]
         if level == 0 and stage > 0:  # a later round: the sphere again (the cameras keep their step)
@@ -488,8 +488,10 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
             current = residual_carve(current, losses, o.residual_carve, o.residual_carve_views,
                                      o.residual_carve_threshold)
             losses.settings = replace(o, lr=o.lr * o.refit_lr_scale)
-            current, report = optimise_level(current, losses, n_levels, plan.seed, progress,
-                                             f"residual carve, refit {res}^3 {size}px", max_passes=o.refit_passes)
+            k = stage - n_levels * rounds
+            current, report = optimise_level(current, losses, n_levels + k, plan.seed, progress,
+                                             f"residual carve {k + 1}/{o.carve_rounds()}, refit {res}^3 {size}px",
+                                             max_passes=o.refit_passes)
         else:
             current, report = optimise_level(current, losses, level, plan.seed, progress, desc,
                                              max_passes=plan.optim.passes(level, n_levels))

@@ -78,7 +78,7 @@ def test_paper_preset_restores_the_papers_settings():
     assert paper["trace"] == TraceSettings(threshold_scale=0.5, inner_depth=8.0)
     assert paper["schedule"].grid_resolutions() == [8, 16, 32, 64]
     assert paper["scene"] == PAPER_SCENE
-    assert paper["optim"].erosion == 0.0 and not paper["optim"].carve
+    assert paper["optim"].erosion == 0.0 and not paper["optim"].carve and paper["optim"].carve_rounds() == 0
     # A command-line override still wins over the preset.
     over = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "mvr/preset=paper",
                                               "trace.threshold_scale=0.3"]))
@@ -94,6 +94,7 @@ def test_fine_preset_is_the_defaults_with_a_finer_last_level():
     assert default["schedule"].grid_resolutions() == [8, 16, 32, 64]
     assert default["optim"].silhouette_tolerance == 0.27 and fine["optim"].silhouette_tolerance == 0.0
     assert default["optim"].erosion == 2.0 and fine["optim"].erosion == 0.0
+    assert default["optim"].carve_rounds() == 0 and fine["optim"].carve_rounds() == 0
     assert fine["optim"] == dataclasses.replace(default["optim"], silhouette_tolerance=0.0, erosion=0.0)
     rest = ("schedule", "optim")
     assert {k: v for k, v in fine.items() if k not in rest} == {k: v for k, v in default.items() if k not in rest}

@@ -301,7 +301,7 @@ def test_erosion_shrinks_the_last_levels_start_and_gives_them_their_passes(tmp_p
 def test_residual_carve_adds_a_refit_after_the_schedule_that_a_rerun_resumes_after(tmp_path):
     """``optim.residual_carve``: one more stage after the last level, at its resolution and images,
     numbered on (level 3 of a 2-level schedule), with at most ``refit_passes`` passes; its
-    checkpoint is where a rerun resumes. Refused with refined cameras."""
+    checkpoint is where a rerun resumes; two rounds, two stages. None with refined cameras."""
     optim = OptimSettings(max_passes=1, residual_carve=2.0, refit_passes=2, refit_lr_scale=0.2)
     settings = dict(SMALL, optim=optim)
     result = reconstruct("sphere", tmp_path, schedule=Schedule(resolutions=[8, 12]), **settings)
@@ -311,5 +311,10 @@ def test_residual_carve_adds_a_refit_after_the_schedule_that_a_rerun_resumes_aft
     assert (tmp_path / "checkpoints" / "level_03.pt").is_file()
     again = reconstruct("sphere", tmp_path, schedule=Schedule(resolutions=[8, 12]), **settings)
     assert again.metrics["resumed_from_level"] == 3
-    with pytest.raises(ValueError, match="residual_carve"):
-        OptimSettings(residual_carve=2.0, cameras=True)
+    two = dict(SMALL, optim=OptimSettings(max_passes=1, residual_carve=2.0, residual_carve_rounds=2, refit_passes=2))
+    twice = reconstruct("sphere", tmp_path / "two", schedule=Schedule(resolutions=[8, 12]), **two)
+    assert [r.level for r in twice.levels] == [1, 2, 3, 4]  # each round a stage of its own
+    assert (tmp_path / "two" / "checkpoints" / "level_04.pt").is_file()
+    assert OptimSettings(residual_carve=2.0, cameras=True).carve_rounds() == 0  # camera error is not shape
+    with pytest.raises(ValueError, match="residual_carve_rounds"):
+        OptimSettings(residual_carve=2.0, residual_carve_rounds=0)
