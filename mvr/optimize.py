@@ -331,6 +331,7 @@ def residual_carve(grid: SDFGrid, losses: "ViewLosses", depth: float, views: int
     n = grid.resolution
     lo, vox = grid.bbox_min.to(torch.float32), grid.voxel_size.to(torch.float32)
     count = torch.zeros(int(np.prod(n)), dtype=torch.int32)
+    top = torch.tensor(n) - 1  # the last sample's index on each axis
     scene = replace(losses.scene, effects=tuple(dict.fromkeys((*losses.scene.effects, "depth"))))
     for start in range(0, losses.cameras.batch_size, chunk):
         ids = torch.arange(start, min(start + chunk, losses.cameras.batch_size))
@@ -347,9 +348,7 @@ def residual_carve(grid: SDFGrid, losses: "ViewLosses", depth: float, views: int
         step = dirs[bad].float() * float(vox.min())
         seen = torch.zeros(len(ids), len(count), dtype=torch.bool)
         for t in np.arange(-0.5, depth + 1e-6, 0.5):
-            idx = torch.round((hit + float(t) * step - lo) / vox).long()
-            for a in range(3):
-                idx[:, a] = idx[:, a].clamp(0, n[a] - 1)
+            idx = torch.minimum(torch.round((hit + float(t) * step - lo) / vox).long().clamp(min=0), top)
             seen[view_of, (idx[:, 0] * n[1] + idx[:, 1]) * n[2] + idx[:, 2]] = True
         count += seen.sum(0, dtype=torch.int32)
     carve = (count >= views).reshape(n)

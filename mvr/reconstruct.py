@@ -158,7 +158,7 @@ def _level_checkpoints(out_dir: Path) -> list[Path]:
 
 def stage_count(schedule: Schedule, optim: OptimSettings) -> int:
     """The levels a run fits in all, as its checkpoints number them: the schedule's, once per round
-    of ``optim.camera_rounds``."""
+    of ``optim.camera_rounds``, then one per round of the residual carve (``optim.carve_rounds``)."""
     return len(schedule.grid_resolutions()) * optim.camera_rounds + optim.carve_rounds()
 
 
