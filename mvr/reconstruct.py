@@ -484,13 +484,12 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
         if rounds > 1:
             desc = f"round {round_index + 1}/{rounds} {desc}"
         if refit:
-            o = plan.optim
+            o, k = plan.optim, stage - n_levels * rounds
+            desc = f"residual carve {k + 1}/{o.carve_rounds()}, refit {res}^3 {size}px"
             current = residual_carve(current, losses, o.residual_carve, o.residual_carve_views,
                                      o.residual_carve_threshold)
             losses.settings = replace(o, lr=o.lr * o.refit_lr_scale)
-            k = stage - n_levels * rounds
-            current, report = optimise_level(current, losses, n_levels + k, plan.seed, progress,
-                                             f"residual carve {k + 1}/{o.carve_rounds()}, refit {res}^3 {size}px",
+            current, report = optimise_level(current, losses, n_levels + k, plan.seed, progress, desc,
                                              max_passes=o.refit_passes)
         else:
             current, report = optimise_level(current, losses, level, plan.seed, progress, desc,
