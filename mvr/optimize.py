@@ -79,8 +79,9 @@ class OptimSettings:
         erosion_pass_factor: a level that starts shrunk runs up to this many times its
             ``max_passes`` (rounded up): it has more to grow back.
         residual_carve: after the last level, carve the samples along the rays of badly shaded
-            pixels to this many samples behind the surface, then refit (0: off, the default; never
-            with ``cameras``; measured in docs/mvr_method.md).
+            pixels to this many samples behind the surface, then refit (0: off; with
+            ``cameras`` the rays are those of the refined cameras, which the refit goes on refining;
+            measured in docs/mvr_method.md).
         residual_carve_rounds: how many times to carve and refit (each a stage of its own).
         residual_carve_views, residual_carve_threshold: the views whose rays must agree on a sample,
             and the image difference (mean over channels) that makes a pixel bad.
@@ -129,7 +130,7 @@ class OptimSettings:
     erosion_keep: Optional[float] = 1.5
     erosion_levels: int = 1
     erosion_pass_factor: float = 2.0
-    residual_carve: float = 0.0
+    residual_carve: float = 2.0
     residual_carve_rounds: int = 1
     residual_carve_views: int = 3
     residual_carve_threshold: float = 0.1
@@ -192,9 +193,9 @@ class OptimSettings:
                                                            "a positive number or null (no limit)", _is_time_limit))
 
     def carve_rounds(self) -> int:
-        """The residual carve's rounds after the schedule: none where ``residual_carve`` is 0 or the
-        cameras are refined (a carve by the residuals would take camera error for shape)."""
-        return self.residual_carve_rounds if self.residual_carve > 0 and not self.cameras else 0
+        """The residual carve's rounds after the schedule (none where ``residual_carve`` is 0). With
+        ``cameras`` they come after the last round, when the cameras are as refined as they get."""
+        return self.residual_carve_rounds if self.residual_carve > 0 else 0
 
     def erodes(self, level: int, levels: int) -> bool:
         """Whether level ``level`` (0-based) of a schedule of ``levels`` levels starts from the

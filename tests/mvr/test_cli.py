@@ -233,12 +233,13 @@ def test_a_stopped_run_says_so_in_one_line_and_a_rerun_resumes(signame, status, 
         lines = [line for line in err.splitlines() if line.strip()]
         assert len(lines) == 1, err
         assert lines[0].startswith("sdfdiff-mvr: stopped by ") and said in lines[0], lines[0]
-        assert "after level 1 of 2" in lines[0] and f"out_dir={out}" in lines[0] and "resume" in lines[0]
+        # two levels, then the residual carve's refit (a stage of its own, on by default)
+        assert "after level 1 of 3" in lines[0] and f"out_dir={out}" in lines[0] and "resume" in lines[0]
         assert signal.getsignal(signal.SIGTERM) is unhandled  # mvr's handler is gone again
         assert sorted(p.name for p in (out / "checkpoints").iterdir()) == ["level_01.pt"]
         monkeypatch.undo()  # the real optimise_level
         run_entry(main, args, monkeypatch)
         metrics = json.loads((out / "metrics.json").read_text())
-        assert metrics["resumed_from_level"] == 1 and metrics["levels"] == 2
+        assert metrics["resumed_from_level"] == 1 and metrics["levels"] == 3
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -86,16 +86,17 @@ def test_paper_preset_restores_the_papers_settings():
 
 
 def test_fine_preset_is_the_defaults_with_a_finer_last_level():
-    """... and the plain squared silhouette difference it was measured with (no dead zone), and
-    no erosion of the last level."""
+    """... and the plain squared silhouette difference it was measured with (no dead zone), no
+    erosion of the last level and no residual carve; the defaults carve once."""
     fine = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused", "mvr/preset=fine"]))
     default = reconstruct_kwargs(compose_config(["target=torus", "out_dir=unused"]))
     assert fine["schedule"].grid_resolutions() == [8, 16, 32, 48, 96]
     assert default["schedule"].grid_resolutions() == [8, 16, 32, 64]
     assert default["optim"].silhouette_tolerance == 0.27 and fine["optim"].silhouette_tolerance == 0.0
     assert default["optim"].erosion == 2.0 and fine["optim"].erosion == 0.0
-    assert default["optim"].carve_rounds() == 0 and fine["optim"].carve_rounds() == 0
-    assert fine["optim"] == dataclasses.replace(default["optim"], silhouette_tolerance=0.0, erosion=0.0)
+    assert default["optim"].carve_rounds() == 1 and fine["optim"].carve_rounds() == 0
+    assert fine["optim"] == dataclasses.replace(default["optim"], silhouette_tolerance=0.0, erosion=0.0,
+                                                residual_carve=0.0)
     rest = ("schedule", "optim")
     assert {k: v for k, v in fine.items() if k not in rest} == {k: v for k, v in default.items() if k not in rest}
 
