@@ -85,6 +85,7 @@ class OptimSettings:
         residual_carve_rounds: how many times to carve and refit (each a stage of its own).
         residual_carve_views, residual_carve_threshold: the views whose rays must agree on a sample,
             and the image difference (mean over channels) that makes a pixel bad.
+        residual_carve_edge: pixels this close to either silhouette's edge cast no carving ray.
         refit_passes, refit_lr_scale: the refit's passes at most, at ``lr`` times this (at the full
             step the per-view updates walk back into the bridge: docs/mvr_method.md).
         cameras: refine each camera's pose (an orbit about the origin, a distance and an aim, ``CameraPoses``) with
@@ -134,6 +135,7 @@ class OptimSettings:
     residual_carve_rounds: int = 1
     residual_carve_views: int = 3
     residual_carve_threshold: float = 0.1
+    residual_carve_edge: int = 3
     refit_passes: int = 10
     refit_lr_scale: float = 0.2
     cameras: bool = False
@@ -162,6 +164,7 @@ class OptimSettings:
         check_int(self.residual_carve_rounds, "residual_carve_rounds", minimum=1)
         check_int(self.residual_carve_views, "residual_carve_views", minimum=1)
         check_float(self.residual_carve_threshold, "residual_carve_threshold", minimum=0)
+        check_int(self.residual_carve_edge, "residual_carve_edge", minimum=0)
         check_int(self.refit_passes, "refit_passes", minimum=1)
         check_positive(self.refit_lr_scale, "refit_lr_scale")
         if self.image_loss not in IMAGE_LOSSES:
@@ -320,13 +323,13 @@ def shrink(values: torch.Tensor, voxel: float, erosion: float, keep: Optional[fl
 def residual_carve(grid: SDFGrid, losses: "ViewLosses", depth: float, views: int = 3, threshold: float = 0.1,
                    edge_px: int = 3, chunk: int = 8) -> SDFGrid:
     """``grid`` with the samples along the rays of badly shaded pixels set outside: for each of the
-    views' pixels that both the grid and the target hit, away from the silhouettes' edges (``edge_px``),
-    whose image differs from the target's by more than ``threshold`` (mean over the channels), the
-    ray from half a sample before the grid's hit point to ``depth`` samples behind it; a sample that
-    the rays of at least ``views`` views pass within half a sample of is raised to half a sample
-    outside. Where a concavity was bridged, the rays that should have reached its floor agree on the
-    bridge from several sides (docs/mvr_method.md: with a refit at a small step, the fandisk's fillet
-    stayed open). A new grid; no gradient."""
+    views' pixels that both the grid and the target hit, ``edge_px`` pixels or more from either
+    silhouette's edge (0: any), whose image differs from the target's by more than ``threshold`` (mean
+    over the channels), the ray from half a sample before the grid's hit point to ``depth`` samples
+    behind it; a sample that the rays of at least ``views`` views pass within half a sample of is
+    raised to half a sample outside. Where a concavity was bridged, the rays that should have reached
+    its floor agree on the bridge from several sides (docs/mvr_method.md: with a refit at a small
+    step, the fandisk's fillet stayed open). A new grid; no gradient."""
     from scipy import ndimage
 
     n = grid.resolution
@@ -341,6 +344,7 @@ def residual_carve(grid: SDFGrid, losses: "ViewLosses", depth: float, views: int
         target, mask = losses.images[ids], losses.masks[ids] >= 0.5
         both = out.hit & mask
         rims = np.stack([ndimage.binary_dilation(m ^ ndimage.binary_erosion(m), iterations=edge_px)
+                         if edge_px > 0 else np.zeros_like(m)  # (scipy reads 0 iterations as "until it stops")
                          for m in (mask | out.hit).cpu().numpy()])
         bad = both & ~torch.from_numpy(rims) & ((out.image - target).abs().mean(-1) > threshold)
         origins, dirs = cams.rays()

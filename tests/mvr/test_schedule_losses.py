@@ -172,3 +172,8 @@ def test_residual_carve_opens_a_bridged_dent_and_little_else():
     assert bool((carved.values[0] >= filled.values[0]).all())          # it only ever removes
     same = residual_carve(truth, losses, depth=3.0, views=3)           # the right shape: nothing to carve
     assert torch.equal(same.values[0][truth.values[0] < 0], truth.values[0][truth.values[0] < 0])
+    # the silhouettes' margin (``edge_px``): every pixel within it casts no ray, a narrower one more
+    assert torch.equal(residual_carve(filled, losses, depth=3.0, views=3, edge_px=64).values, filled.values)
+    loose = residual_carve(filled, losses, depth=3.0, views=3, edge_px=0)
+    assert bool(((loose.values[0] > filled.values[0]) | ~raised).all())  # what the 3 px margin carves, and
+    assert int(((loose.values[0] > filled.values[0]) & (filled.values[0] < 0)).sum()) >= int(raised.sum())
