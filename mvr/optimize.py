@@ -88,6 +88,9 @@ class OptimSettings:
         residual_carve_edge: pixels this close to either silhouette's edge cast no carving ray.
         refit_passes, refit_lr_scale: the refit's passes at most, at ``lr`` times this (at the full
             step the per-view updates walk back into the bridge: docs/mvr_method.md).
+        batch_steps: 0: a pass updates view by view (the paper's way); N: a pass is N Adam steps on
+            the mean loss of all views at once (a step no view's own update can walk off with).
+        refit_batch_steps: ``batch_steps`` for the refit after the residual carve.
         cameras: refine each camera's pose (an orbit about the origin, a distance and an aim, ``CameraPoses``) with
             the shape, by the render's camera gradient (not in the paper; for inexact cameras).
         camera_lr: Adam's step for the poses (radians for the orbit and the aim, the log of the
@@ -138,6 +141,8 @@ class OptimSettings:
     residual_carve_edge: int = 3
     refit_passes: int = 10
     refit_lr_scale: float = 0.2
+    batch_steps: int = 0
+    refit_batch_steps: int = 0
     cameras: bool = False
     camera_lr: float = 0.003
     camera_levels: int = 1
@@ -167,6 +172,8 @@ class OptimSettings:
         check_int(self.residual_carve_edge, "residual_carve_edge", minimum=0)
         check_int(self.refit_passes, "refit_passes", minimum=1)
         check_positive(self.refit_lr_scale, "refit_lr_scale")
+        check_int(self.batch_steps, "batch_steps", minimum=0)
+        check_int(self.refit_batch_steps, "refit_batch_steps", minimum=0)
         if self.image_loss not in IMAGE_LOSSES:
             raise ValueError(f"image_loss must be one of {', '.join(IMAGE_LOSSES)}, got {self.image_loss!r}")
         check_int(self.image_levels, "image_levels", minimum=1)
@@ -678,8 +685,11 @@ def _run_passes(fit: _Fitting, losses: ViewLosses, level: int, seed: int, progre
 def _update_views(fit: _Fitting, losses: ViewLosses, view_loss: torch.Tensor, order: torch.Tensor,
                   t_start: float, max_seconds: Optional[float]) -> tuple[int, bool]:
     """One pass's updates, view by view in ``order`` (V,) long: a view whose loss in ``view_loss``
-    (V,) is above the mean is hard (more updates). Returns (updates made, whether the level's
-    ``max_seconds`` ran out, which ends the pass early)."""
+    (V,) is above the mean is hard (more updates); or, with ``settings.batch_steps``, that many
+    steps on all views at once. Returns (updates made, whether the level's ``max_seconds`` ran out,
+    which ends the pass early)."""
+    if losses.settings.batch_steps > 0:
+        return _update_all_views(fit, losses, t_start, max_seconds)
     mean = float(view_loss.mean())
     made = 0
     for v in order.tolist():
@@ -687,6 +697,28 @@ def _update_views(fit: _Fitting, losses: ViewLosses, view_loss: torch.Tensor, or
         if max_seconds is not None and time.perf_counter() - t_start > max_seconds:
             return made, True
     return made, False
+
+
+def _update_all_views(fit: _Fitting, losses: ViewLosses, t_start: float,
+                      max_seconds: Optional[float], chunk: int = 8) -> tuple[int, bool]:
+    """``settings.batch_steps`` Adam steps, each on the mean data loss of every view (rendered
+    ``chunk`` views at a time, their gradients summed) plus the regularisers. Returns (steps made,
+    whether ``max_seconds`` ran out)."""
+    settings, n_views = losses.settings, losses.cameras.batch_size
+    for k in range(settings.batch_steps):
+        fit.opt.zero_grad(set_to_none=True)
+        for i in range(0, n_views, chunk):
+            g = fit.grid()
+            data, _, _ = losses.data_loss(g, torch.arange(i, min(i + chunk, n_views)))
+            (data.sum() / n_views).backward()
+        if settings.eikonal_weight > 0 or settings.laplacian_weight > 0:
+            losses.regulariser(fit.grid())[0].backward()
+        fit.opt.step()
+        if losses.poses is not None:
+            losses.poses.step()
+        if max_seconds is not None and time.perf_counter() - t_start > max_seconds:
+            return k + 1, True
+    return settings.batch_steps, False
 
 
 def _update_view(fit: _Fitting, losses: ViewLosses, view: int, hard: bool, mean: float) -> int:

@@ -488,7 +488,7 @@ def _fit_levels(plan: _RunPlan, tgt: Target, state: Optional[_ResumePoint], prog
             desc = f"residual carve {k + 1}/{o.carve_rounds()}, refit {res}^3 {size}px"
             current = residual_carve(current, losses, o.residual_carve, o.residual_carve_views,
                                      o.residual_carve_threshold, o.residual_carve_edge)
-            losses.settings = replace(o, lr=o.lr * o.refit_lr_scale)
+            losses.settings = replace(o, lr=o.lr * o.refit_lr_scale, batch_steps=o.refit_batch_steps)
             current, report = optimise_level(current, losses, n_levels + k, plan.seed, progress, desc,
                                              max_passes=o.refit_passes)
         else:

@@ -36,6 +36,28 @@ def test_level_reduces_the_loss(problem):
         assert 26 <= h["updates"] <= 26 * 6
 
 
+def test_batch_steps_take_adams_steps_on_the_mean_loss_of_all_views(problem):
+    """``batch_steps``: a pass is that many Adam steps on the mean loss of every view, rendered in
+    chunks; the first step is Adam's first step on that mean's gradient (lr g / (|g| + eps)),
+    computed here in one render of all 26 views."""
+    grid, losses = problem
+    settings = OptimSettings(max_passes=2, batch_steps=3, lr=0.1, carve=False, fill_cavities=False)
+    fitted, report = optimise_level(grid, losses(settings), progress=False)
+    assert report.loss_end < 0.7 * report.loss_start
+    assert [h["updates"] for h in report.history] == [3] * report.passes
+    one, _ = optimise_level(grid, losses(OptimSettings(max_passes=1, batch_steps=1, lr=0.1, carve=False,
+                                                       fill_cavities=False, min_passes=1)), progress=False)
+    values = grid.values.clone().requires_grad_(True)
+    whole = losses(settings)
+    (whole.data_loss(SDFGrid(values), torch.arange(26))[0].mean() + whole.regulariser(SDFGrid(values))[0]).backward()
+    g, step = values.grad, one.values - grid.values
+    lr = 0.1 * float(grid.voxel_size.min())
+    assert float(step.abs().max()) > 0.5 * lr
+    assert torch.allclose(step, -lr * g / (g.abs() + settings.eps), rtol=1e-3, atol=1e-4 * lr)
+    with pytest.raises(ValueError, match="batch_steps"):
+        OptimSettings(batch_steps=-1)
+
+
 FEW = dict(hard_view_updates=1, easy_view_updates=1)
 
 

@@ -333,9 +333,12 @@ def test_residual_carve_adds_a_refit_after_the_schedule_that_a_rerun_resumes_aft
     assert (tmp_path / "checkpoints" / "level_03.pt").is_file()
     again = reconstruct("sphere", tmp_path, schedule=Schedule(resolutions=[8, 12]), **settings)
     assert again.metrics["resumed_from_level"] == 3
-    two = dict(SMALL, optim=OptimSettings(max_passes=1, residual_carve=2.0, residual_carve_rounds=2, refit_passes=2))
+    two = dict(SMALL, optim=OptimSettings(max_passes=1, residual_carve=2.0, residual_carve_rounds=2, refit_passes=2,
+                                          refit_batch_steps=3))
     twice = reconstruct("sphere", tmp_path / "two", schedule=Schedule(resolutions=[8, 12]), **two)
     assert [r.level for r in twice.levels] == [1, 2, 3, 4]  # each round a stage of its own
+    assert twice.levels[1].updates >= 26  # the levels update view by view, the refits on all views at once
+    assert [r.updates for r in twice.levels[2:]] == [3 * r.passes for r in twice.levels[2:]]
     assert (tmp_path / "two" / "checkpoints" / "level_04.pt").is_file()
     with pytest.raises(ValueError, match="residual_carve_rounds"):
         OptimSettings(residual_carve=2.0, residual_carve_rounds=0)
