@@ -42,7 +42,7 @@ def test_batch_steps_take_adams_steps_on_the_mean_loss_of_all_views(problem):
     computed here in one render of all 26 views."""
     grid, losses = problem
     settings = OptimSettings(max_passes=2, batch_steps=3, lr=0.1, carve=False, fill_cavities=False)
-    fitted, report = optimise_level(grid, losses(settings), progress=False)
+    _, report = optimise_level(grid, losses(settings), progress=False)
     assert report.loss_end < 0.7 * report.loss_start
     assert [h["updates"] for h in report.history] == [3] * report.passes
     one, _ = optimise_level(grid, losses(OptimSettings(max_passes=1, batch_steps=1, lr=0.1, carve=False,
